@@ -1,0 +1,909 @@
+"""The SceneGraph facade: a holousd scene graph is a USD stage, read and written through this class.
+
+Layout (ARCHITECTURE.md §1)::
+
+    /World                      defaultPrim; upAxis Z, metersPerUnit 1, kilogramsPerUnit 1
+      /World/PhysicsScene       UsdPhysics.Scene, gravity -Z 9.81
+      /World/Background         HoloNodeAPI(role=background), static collider
+      /World/Objects/<name>     Xform = object state (translate + orient), HoloNodeAPI, RigidBodyAPI, MassAPI, ...
+         Geom                   UsdGeom.Mesh in object coordinates
+         Collision              Scope of collider meshes Part_000, Part_001, ... (CollisionAPI, MeshCollisionAPI)
+         Splats                 reference to a per-object .usdc holding a UsdVol.ParticleField3DGaussianSplat
+      /World/Materials          physics materials (UsdShade.Material + UsdPhysics.MaterialAPI)
+
+Heavy data (SDF grids, splats) goes to files under ``assets/<layer stem>/`` beside the layer being written, so
+the scene file stays readable and every stage's assets stay on disk.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from pxr import Gf, Sdf, Tf, Usd, UsdGeom, UsdPhysics, UsdShade, UsdVol, Vt
+
+from holousd._atomic import atomic_path
+from holousd._errors import InvalidDataError, SceneError, SchemaVersionError
+from holousd.usd._layers import layer_path, new_layer_over, save_layer
+from holousd.usd._plugin import SCHEMA_VERSION
+from holousd.usd._types import (
+    Collider,
+    Energies,
+    GaussianSplats,
+    MeshData,
+    NodeInfo,
+    PhysicsProps,
+    Pose,
+    SdfField,
+)
+
+__all__ = [
+    "BACKGROUND",
+    "BACKGROUND_PATH",
+    "MATERIALS_PATH",
+    "OBJECTS_PATH",
+    "PHYSICS_SCENE_PATH",
+    "WORLD_PATH",
+    "NodeSummary",
+    "SceneGraph",
+    "SceneSummary",
+    "schema_version_of",
+]
+
+WORLD_PATH = Sdf.Path("/World")
+PHYSICS_SCENE_PATH = Sdf.Path("/World/PhysicsScene")
+BACKGROUND_PATH = Sdf.Path("/World/Background")
+OBJECTS_PATH = Sdf.Path("/World/Objects")
+MATERIALS_PATH = Sdf.Path("/World/Materials")
+BACKGROUND = "background"
+"""Node name of the background (the root of the support tree)."""
+
+_GRAVITY = 9.81
+_SDF_KEY = "sdf"
+
+
+def schema_version_of(layer: Sdf.Layer) -> int | None:
+    """Return the holousd schema version recorded in ``layer``'s customLayerData, or None if absent."""
+    data = layer.customLayerData.get("holousd")
+    if not isinstance(data, dict) or "schemaVersion" not in data:
+        return None
+    return int(data["schemaVersion"])
+
+
+@dataclass(kw_only=True)
+class NodeSummary:
+    """One row of :meth:`SceneGraph.summary`."""
+
+    name: str
+    """Node name ('background' or the object name)."""
+    path: str
+    """Prim path."""
+    role: str
+    """'background' or 'object'."""
+    instance_id: int
+    """Instance id in the observations' masks."""
+    supported_by: str | None
+    """Name of the support parent (None for the background or when missing)."""
+    beside: list[str]
+    """Names of touching siblings."""
+    mesh_faces: int
+    """Triangle count of the Geom mesh (0 when absent)."""
+    sdf_resolution: list[int] | None
+    """SDF grid resolution, or None when the node has no SDF."""
+    splats: int
+    """Number of Gaussian splats (0 when absent)."""
+    mass_kg: float | None
+    """Authored mass, or None."""
+    collider: str | None
+    """Collider approximation ('convexHull', 'convexDecomposition', 'none') or None when there is none."""
+    collider_parts: int
+    """Number of collider meshes."""
+
+
+@dataclass(kw_only=True)
+class SceneSummary:
+    """What :meth:`SceneGraph.summary` reports (``holousd info``)."""
+
+    path: str
+    """Root layer of the scene."""
+    layers: list[str]
+    """Layer stack, strongest first."""
+    up_axis: str
+    """Stage up axis."""
+    meters_per_unit: float
+    """Stage linear unit."""
+    kilograms_per_unit: float
+    """Stage mass unit."""
+    schema_version: int | None
+    """holousd schema version recorded in the root layer."""
+    nodes: list[NodeSummary] = field(default_factory=list)
+    """One entry per node, background first."""
+
+    @property
+    def total_splats(self) -> int:
+        """Sum of splat counts over all nodes."""
+        return sum(n.splats for n in self.nodes)
+
+
+def _vec3f_array(values: np.ndarray) -> Vt.Vec3fArray:
+    return Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(values, dtype=np.float32))
+
+
+def _relative_asset(target: Path, layer: Sdf.Layer) -> str:
+    anchor = layer_path(layer)
+    assert anchor is not None
+    rel = os.path.relpath(target, anchor.parent).replace(os.sep, "/")
+    return rel if rel.startswith(".") else f"./{rel}"
+
+
+def _triangulate(counts: np.ndarray, indices: np.ndarray, where: str) -> np.ndarray:
+    """Fan-triangulate a polygon mesh given as face vertex counts and indices -> [F, 3]."""
+    if counts.size == 0:
+        return np.zeros((0, 3), dtype=np.int64)
+    if np.all(counts == 3):
+        if indices.size != counts.size * 3:
+            raise SceneError(f"{where}: faceVertexIndices has {indices.size} entries, expected {counts.size * 3}")
+        return indices.reshape(-1, 3).astype(np.int64)
+    if counts.min() < 3 or counts.sum() != indices.size:
+        raise SceneError(f"{where}: faceVertexCounts and faceVertexIndices disagree; re-export the mesh")
+    tris = []
+    start = 0
+    for count in counts:
+        face = indices[start : start + count]
+        tris.extend((face[0], face[i], face[i + 1]) for i in range(1, count - 1))
+        start += count
+    return np.asarray(tris, dtype=np.int64)
+
+
+class SceneGraph:
+    """A holousd scene graph: a thin, typed facade over a ``Usd.Stage``.
+
+    Create one with :meth:`create` or :meth:`open`; the raw stage stays available as :attr:`stage` for anything
+    the facade does not cover. All writes go to the stage's current edit target (the root layer unless a
+    stage transform or :meth:`edit` pushed a new one).
+
+    Args:
+        stage: An open stage laid out as described in this module's docstring.
+        provenance: Name recorded in ``holo:node:provenance`` of every node this SceneGraph writes.
+    """
+
+    def __init__(self, stage: Usd.Stage, *, provenance: str = "user") -> None:
+        self._stage = stage
+        self.provenance = provenance
+        """Name recorded as the writer of every node this SceneGraph touches."""
+
+    # ------------------------------------------------------------------ creation / files
+    @classmethod
+    def create(
+        cls, path: str | os.PathLike[str] | None = None, *, overwrite: bool = False, provenance: str = "user"
+    ) -> SceneGraph:
+        """Create a new scene: metadata, /World, /World/PhysicsScene, /World/Objects, /World/Materials.
+
+        Args:
+            path: File the scene will be saved to (:meth:`save`); None keeps it in memory (then SDF grids and
+                splats, which live in files beside the layer, cannot be written).
+            overwrite: Allow ``path`` to exist already (it is only replaced when :meth:`save` succeeds).
+            provenance: See :class:`SceneGraph`.
+        """
+        if path is None:
+            layer = Sdf.Layer.CreateAnonymous("holousd.usda")
+        else:
+            path = Path(path).absolute()
+            if path.exists() and not overwrite:
+                raise SceneError(f"{path} already exists: pass overwrite=True or choose another path")
+            file_format = Sdf.FileFormat.FindByExtension(path.suffix.lstrip("."))
+            if file_format is None:
+                raise SceneError(f"{path}: unknown scene extension; use .usda, .usdc or .usd")
+            layer = Sdf.Layer.Find(str(path))
+            if layer is not None:
+                layer.Clear()
+            else:
+                layer = Sdf.Layer.New(file_format, str(path))
+        stage = Usd.Stage.Open(layer)
+        UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
+        UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+        UsdPhysics.SetStageKilogramsPerUnit(stage, 1.0)
+        layer.customLayerData = {"holousd": {"schemaVersion": SCHEMA_VERSION}}
+        world = UsdGeom.Xform.Define(stage, WORLD_PATH)
+        stage.SetDefaultPrim(world.GetPrim())
+        scene = UsdPhysics.Scene.Define(stage, PHYSICS_SCENE_PATH)
+        scene.CreateGravityDirectionAttr(Gf.Vec3f(0.0, 0.0, -1.0))
+        scene.CreateGravityMagnitudeAttr(_GRAVITY)
+        UsdGeom.Scope.Define(stage, OBJECTS_PATH)
+        UsdGeom.Scope.Define(stage, MATERIALS_PATH)
+        return cls(stage, provenance=provenance)
+
+    @classmethod
+    def open(cls, path: str | os.PathLike[str], *, provenance: str = "user") -> SceneGraph:
+        """Open a scene file, checking that it is readable USD of a schema version this release knows.
+
+        Raises:
+            SceneError: the file is missing, not USD, or corrupt.
+            SchemaVersionError: the scene was written by a newer holousd.
+        """
+        path = Path(path)
+        if not path.is_file():
+            raise SceneError(f"{path}: no such file; check the path (a scene is a .usda/.usdc/.usd/.usdz file)")
+        if Sdf.FileFormat.FindByExtension(path.suffix.lstrip(".")) is None:
+            raise SceneError(f"{path}: not a USD file (extension {path.suffix!r}); give a .usda, .usdc, .usd or .usdz")
+        try:
+            stage = Usd.Stage.Open(str(path))
+        except Tf.ErrorException as exc:
+            first = str(exc).strip().splitlines()[-1] if str(exc).strip() else "unknown error"
+            raise SceneError(f"{path}: cannot be read as USD ({first.strip()}); is the file corrupt?") from exc
+        if stage is None:
+            raise SceneError(f"{path}: cannot be read as USD; is the file corrupt?")
+        version = schema_version_of(stage.GetRootLayer())
+        if version is not None and version > SCHEMA_VERSION:
+            raise SchemaVersionError(
+                f"{path}: written with holousd schema version {version}, this holousd reads up to "
+                f"{SCHEMA_VERSION}; upgrade holousd (pip install -U holousd)"
+            )
+        return cls(stage, provenance=provenance)
+
+    @property
+    def stage(self) -> Usd.Stage:
+        """The underlying USD stage."""
+        return self._stage
+
+    @property
+    def root_layer(self) -> Sdf.Layer:
+        """The stage's root layer (the strongest stage or edit layer)."""
+        return self._stage.GetRootLayer()
+
+    @property
+    def path(self) -> Path | None:
+        """File of the root layer, or None when the scene is in memory."""
+        return layer_path(self.root_layer)
+
+    def save(self, path: str | os.PathLike[str] | None = None) -> Path:
+        """Write the edit-target layer atomically and return its path.
+
+        Args:
+            path: Only for an in-memory scene: the file to write it to.
+        """
+        layer = self._stage.GetEditTarget().GetLayer()
+        if path is not None and not layer.anonymous:
+            if Path(path).absolute() != layer_path(layer):
+                raise SceneError(
+                    f"{path}: a file-backed scene saves to its own file ({layer_path(layer)}); "
+                    "use flatten() to write a copy elsewhere"
+                )
+            path = None
+        return save_layer(layer, path)
+
+    def flatten(self, path: str | os.PathLike[str]) -> Path:
+        """Write the composed scene (all layers and references merged) to one file, atomically."""
+        flat = self._stage.Flatten()
+        return save_layer(flat, path)
+
+    # ------------------------------------------------------------------ layers
+    def push_layer(self, path: str | os.PathLike[str], *, provenance: str | None = None, replace: bool = False) -> None:
+        """Stack a new layer at ``path`` over the current root layer and make it the root and edit target.
+
+        This is how a stage transform starts (write only what changes, then :meth:`save`). If ``path`` already
+        holds a layer that sublayers the current root, it is reopened and writes append to it, unless
+        ``replace`` is True: then it starts empty and replaces the file on :meth:`save`.
+
+        Args:
+            path: File of the new layer.
+            provenance: Writer name recorded on the nodes written from now on (default: the file's stem).
+            replace: Start from an empty layer even if ``path`` exists.
+        """
+        path = Path(path).absolute()
+        base = self.root_layer
+        base_file = layer_path(base)
+        if path.exists() and not replace:
+            try:
+                existing = Sdf.Layer.FindOrOpen(str(path))
+            except Tf.ErrorException as exc:
+                raise SceneError(
+                    f"{path}: exists but is not a readable layer; delete it or choose another name"
+                ) from exc
+            if existing is None:
+                raise SceneError(f"{path}: exists but is not a readable layer; delete it or choose another name")
+            below = [Path(existing.ComputeAbsolutePath(p)).resolve() for p in existing.subLayerPaths]
+            if base_file is None or base_file.resolve() not in below:
+                raise SceneError(
+                    f"{path}: exists and does not sublayer {base_file or 'this in-memory scene'}; "
+                    "choose another file name or delete it"
+                )
+            layer = existing
+        else:
+            layer = new_layer_over(base, path)
+        self._stage = Usd.Stage.Open(layer)
+        self.provenance = provenance if provenance is not None else path.stem
+
+    @contextlib.contextmanager
+    def edit(self, path: str | os.PathLike[str]) -> Iterator[SceneGraph]:
+        """Context manager for a user edit saved as its own layer, never touching the layers below.
+
+        ``with scene.edit("edit_move.usda"): scene.set_pose("mug", pose)`` writes ``edit_move.usda`` (which
+        sublayers the scene) when the block ends; afterwards this SceneGraph shows the edited scene. If the
+        block raises, nothing is written and the SceneGraph returns to the scene as it was.
+        """
+        before_stage, before_provenance = self._stage, self.provenance
+        self.push_layer(path)
+        try:
+            yield self
+        except BaseException:
+            self._stage, self.provenance = before_stage, before_provenance
+            raise
+        self.save()
+
+    # ------------------------------------------------------------------ nodes
+    def node_path(self, name: str) -> Sdf.Path:
+        """Prim path of a node given its name ('background', an object name) or its prim path."""
+        if name.startswith("/"):
+            return Sdf.Path(name)
+        if name == BACKGROUND:
+            return BACKGROUND_PATH
+        if not Sdf.Path.IsValidIdentifier(name):
+            raise InvalidDataError(
+                f"{name!r} is not a valid object name: use letters, digits and '_' and do not start with a digit"
+            )
+        return OBJECTS_PATH.AppendChild(name)
+
+    def node_name(self, path: Sdf.Path | str) -> str:
+        """Inverse of :meth:`node_path`."""
+        path = Sdf.Path(str(path))
+        if path == BACKGROUND_PATH:
+            return BACKGROUND
+        if path.GetParentPath() == OBJECTS_PATH:
+            return path.name
+        return str(path)
+
+    def _prim(self, name: str) -> Usd.Prim:
+        path = self.node_path(name)
+        prim = self._stage.GetPrimAtPath(path)
+        if not prim or not prim.IsValid():
+            raise SceneError(f"{self._where()}: no node {name!r} (prim {path}); add it with add_object() first")
+        return prim
+
+    def _where(self) -> str:
+        return str(self.path) if self.path is not None else "<in-memory scene>"
+
+    def _stamp(self, prim: Usd.Prim) -> None:
+        if prim.HasAPI("HoloNodeAPI"):
+            prim.GetAttribute("holo:node:provenance").Set(self.provenance)
+
+    def _define_node(self, path: Sdf.Path, role: str, instance_id: int, observed_fraction: float) -> Usd.Prim:
+        xform = UsdGeom.Xform.Define(self._stage, path)
+        prim = xform.GetPrim()
+        prim.ApplyAPI("HoloNodeAPI")
+        prim.GetAttribute("holo:node:instanceId").Set(int(instance_id))
+        prim.GetAttribute("holo:node:role").Set(role)
+        prim.GetAttribute("holo:node:observedFraction").Set(float(observed_fraction))
+        prim.GetAttribute("holo:node:provenance").Set(self.provenance)
+        return prim
+
+    def add_background(self, *, instance_id: int = 0, observed_fraction: float = 0.0) -> Sdf.Path:
+        """Define /World/Background (the static room shell and root of the support tree)."""
+        return self._define_node(BACKGROUND_PATH, "background", instance_id, observed_fraction).GetPath()
+
+    def add_object(
+        self, name: str, *, instance_id: int, pose: Pose | None = None, observed_fraction: float = 0.0
+    ) -> Sdf.Path:
+        """Define /World/Objects/<name> with its node identity and (optionally) its world pose."""
+        path = self.node_path(name)
+        if path.GetParentPath() != OBJECTS_PATH:
+            raise InvalidDataError(f"{name!r}: objects are named by a plain identifier, not a path")
+        if not self._stage.GetPrimAtPath(OBJECTS_PATH):
+            UsdGeom.Scope.Define(self._stage, OBJECTS_PATH)
+        self._define_node(path, "object", instance_id, observed_fraction)
+        self.set_pose(name, pose if pose is not None else Pose())
+        return path
+
+    def objects(self) -> list[str]:
+        """Names of the object nodes, in prim order."""
+        parent = self._stage.GetPrimAtPath(OBJECTS_PATH)
+        if not parent:
+            return []
+        return [p.GetName() for p in parent.GetChildren() if p.HasAPI("HoloNodeAPI")]
+
+    def nodes(self) -> list[NodeInfo]:
+        """Identity of every node: the background (if any) first, then the objects."""
+        names = ([BACKGROUND] if self._stage.GetPrimAtPath(BACKGROUND_PATH) else []) + self.objects()
+        return [self.node_info(n) for n in names]
+
+    def node_info(self, name: str) -> NodeInfo:
+        """Identity of one node (HoloNodeAPI values)."""
+        prim = self._prim(name)
+
+        def get(attr: str, default: object) -> object:
+            value = prim.GetAttribute(attr).Get()
+            return default if value is None else value
+
+        return NodeInfo(
+            name=self.node_name(prim.GetPath()),
+            path=str(prim.GetPath()),
+            role=str(get("holo:node:role", "object")),
+            instance_id=int(get("holo:node:instanceId", 0)),
+            observed_fraction=float(get("holo:node:observedFraction", 0.0)),
+            provenance=str(get("holo:node:provenance", "")),
+        )
+
+    def set_node_info(
+        self, name: str, *, instance_id: int | None = None, observed_fraction: float | None = None
+    ) -> None:
+        """Update a node's instance id and / or observed fraction."""
+        prim = self._prim(name)
+        if instance_id is not None:
+            prim.GetAttribute("holo:node:instanceId").Set(int(instance_id))
+        if observed_fraction is not None:
+            prim.GetAttribute("holo:node:observedFraction").Set(float(observed_fraction))
+        self._stamp(prim)
+
+    # ------------------------------------------------------------------ state
+    def set_pose(self, name: str, pose: Pose) -> None:
+        """Set the world pose of an object Xform (translate + orient ops, double precision)."""
+        prim = self._prim(name)
+        xform = UsdGeom.Xformable(prim)
+        world = Gf.Matrix4d().SetIdentity()
+        world.SetRotateOnly(Gf.Quatd(float(pose.orientation[3]), *map(float, pose.orientation[:3])))
+        world.SetTranslateOnly(Gf.Vec3d(*map(float, pose.translation)))
+        parent_world = UsdGeom.Xformable(prim.GetParent()).ComputeLocalToWorldTransform(Usd.TimeCode.Default())
+        local = Gf.Transform(world * parent_world.GetInverse())
+        ops = xform.GetOrderedXformOps()
+        kinds = [op.GetOpType() for op in ops]
+        if kinds != [UsdGeom.XformOp.TypeTranslate, UsdGeom.XformOp.TypeOrient] or any(
+            op.GetPrecision() != UsdGeom.XformOp.PrecisionDouble for op in ops
+        ):
+            xform.ClearXformOpOrder()
+            ops = [
+                xform.AddTranslateOp(UsdGeom.XformOp.PrecisionDouble),
+                xform.AddOrientOp(UsdGeom.XformOp.PrecisionDouble),
+            ]
+        else:
+            xform.SetXformOpOrder(ops)
+        ops[0].Set(local.GetTranslation())
+        ops[1].Set(Gf.Quatd(local.GetRotation().GetQuat()))
+        self._stamp(prim)
+
+    def get_pose(self, name: str, time: float | None = None) -> Pose:
+        """World pose of a node's Xform (at ``time`` when the pose is animated, e.g. by a simulation layer)."""
+        prim = self._prim(name)
+        code = Usd.TimeCode.Default() if time is None else Usd.TimeCode(time)
+        matrix = UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(code)
+        transform = Gf.Transform(matrix)
+        quat = transform.GetRotation().GetQuat()
+        imag = quat.GetImaginary()
+        return Pose(
+            translation=np.array(transform.GetTranslation()),
+            orientation=np.array([imag[0], imag[1], imag[2], quat.GetReal()]),
+        )
+
+    # ------------------------------------------------------------------ geometry
+    def _write_mesh(self, path: Sdf.Path, mesh: MeshData) -> UsdGeom.Mesh:
+        geom = UsdGeom.Mesh.Define(self._stage, path)
+        geom.CreatePointsAttr().Set(_vec3f_array(mesh.points))
+        geom.CreateFaceVertexCountsAttr().Set(Vt.IntArray.FromNumpy(np.full(len(mesh.faces), 3, dtype=np.int32)))
+        geom.CreateFaceVertexIndicesAttr().Set(Vt.IntArray.FromNumpy(mesh.faces.astype(np.int32).ravel()))
+        geom.CreateSubdivisionSchemeAttr().Set(UsdGeom.Tokens.none)
+        geom.CreateOrientationAttr().Set(UsdGeom.Tokens.rightHanded)
+        bounds = mesh.bounds.astype(np.float32)
+        geom.CreateExtentAttr().Set(Vt.Vec3fArray.FromNumpy(bounds))
+        return geom
+
+    def _read_mesh(self, prim: Usd.Prim) -> MeshData:
+        geom = UsdGeom.Mesh(prim)
+        points = geom.GetPointsAttr().Get()
+        counts = geom.GetFaceVertexCountsAttr().Get()
+        indices = geom.GetFaceVertexIndicesAttr().Get()
+        where = f"{self._where()}:{prim.GetPath()}"
+        if points is None or counts is None or indices is None:
+            raise SceneError(f"{where}: mesh has no points or faces authored; write it with set_mesh()")
+        faces = _triangulate(np.asarray(counts, dtype=np.int64), np.asarray(indices, dtype=np.int64), where)
+        try:
+            return MeshData(points=np.asarray(points, dtype=np.float64), faces=faces)
+        except InvalidDataError as exc:
+            raise SceneError(f"{where}: {exc}") from exc
+
+    def set_mesh(self, name: str, mesh: MeshData) -> None:
+        """Write a node's mesh (object coordinates) as <node>/Geom."""
+        prim = self._prim(name)
+        self._write_mesh(prim.GetPath().AppendChild("Geom"), mesh)
+        self._stamp(prim)
+
+    def get_mesh(self, name: str) -> MeshData:
+        """Read a node's Geom mesh (triangulated if it was authored with polygons)."""
+        prim = self._prim(name)
+        geom = prim.GetChild("Geom")
+        if not geom or not geom.IsA(UsdGeom.Mesh):
+            raise SceneError(f"{self._where()}: node {name!r} has no Geom mesh; write one with set_mesh()")
+        return self._read_mesh(geom)
+
+    # ------------------------------------------------------------------ assets
+    def _asset_file(self, name: str, suffix: str) -> Path:
+        layer = self._stage.GetEditTarget().GetLayer()
+        anchor = layer_path(layer)
+        if anchor is None:
+            raise SceneError(
+                "the scene is in memory: SDF grids and splats are stored in files beside the scene, "
+                "so create it with a path (SceneGraph.create('scene.usda'))"
+            )
+        return anchor.parent / "assets" / anchor.stem / f"{name}{suffix}"
+
+    def set_sdf(self, name: str, sdf: SdfField) -> Path:
+        """Store a node's SDF grid in a compressed .npz beside the layer and author HoloSdfAPI.
+
+        Returns:
+            The .npz file written.
+        """
+        prim = self._prim(name)
+        target = self._asset_file(self.node_name(prim.GetPath()), ".sdf.npz")
+        with atomic_path(target) as tmp:
+            with open(tmp, "wb") as fh:
+                np.savez_compressed(fh, **{_SDF_KEY: sdf.grid})
+        prim.ApplyAPI("HoloSdfAPI")
+        layer = self._stage.GetEditTarget().GetLayer()
+        prim.GetAttribute("holo:sdf:file").Set(Sdf.AssetPath(_relative_asset(target, layer)))
+        prim.GetAttribute("holo:sdf:origin").Set(Gf.Vec3d(*map(float, sdf.origin)))
+        prim.GetAttribute("holo:sdf:voxelSize").Set(sdf.voxel_size)
+        prim.GetAttribute("holo:sdf:resolution").Set(Gf.Vec3i(*sdf.resolution))
+        prim.GetAttribute("holo:sdf:isoLevel").Set(sdf.iso_level)
+        self._stamp(prim)
+        return target
+
+    def get_sdf(self, name: str) -> SdfField:
+        """Read a node's SDF field, loading the grid from its .npz asset."""
+        prim = self._prim(name)
+        where = f"{self._where()}:{prim.GetPath()}"
+        if not prim.HasAPI("HoloSdfAPI"):
+            raise SceneError(f"{where}: node has no SDF (HoloSdfAPI); write one with set_sdf()")
+        asset = prim.GetAttribute("holo:sdf:file").Get()
+        resolved = asset.resolvedPath if asset is not None else ""
+        if not resolved:
+            raise SceneError(
+                f"{where}: SDF file {asset.path if asset else '<unset>'!r} cannot be found; "
+                "restore the assets/ folder beside the scene"
+            )
+        try:
+            with np.load(resolved) as data:
+                grid = data[_SDF_KEY]
+        except (OSError, ValueError, KeyError) as exc:
+            raise SceneError(f"{resolved}: not a holousd SDF grid ({exc}); re-run the stage that wrote it") from exc
+        resolution = tuple(prim.GetAttribute("holo:sdf:resolution").Get())
+        if tuple(grid.shape) != resolution:
+            raise SceneError(
+                f"{where}: grid in {resolved} has shape {list(grid.shape)} but holo:sdf:resolution is "
+                f"{list(resolution)}; re-run the stage that wrote it"
+            )
+        try:
+            return SdfField(
+                grid=grid,
+                origin=np.array(prim.GetAttribute("holo:sdf:origin").Get()),
+                voxel_size=prim.GetAttribute("holo:sdf:voxelSize").Get(),
+                iso_level=prim.GetAttribute("holo:sdf:isoLevel").Get(),
+            )
+        except InvalidDataError as exc:
+            raise SceneError(f"{where}: {exc}") from exc
+
+    def set_gaussians(self, name: str, splats: GaussianSplats) -> Path:
+        """Store a node's splats as a UsdVol.ParticleField3DGaussianSplat in a per-object .usdc.
+
+        The scene's <node>/Splats prim references that file; when the splats are bound to faces, its
+        ``holo:gom:mesh`` relationship targets <node>/Geom.
+
+        Returns:
+            The .usdc file written.
+        """
+        prim = self._prim(name)
+        target = self._asset_file(self.node_name(prim.GetPath()), ".splats.usdc")
+        layer = Sdf.Layer.CreateAnonymous("splats.usdc")
+        stage = Usd.Stage.Open(layer)
+        UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
+        UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+        layer.customLayerData = {"holousd": {"schemaVersion": SCHEMA_VERSION}}
+        field_prim = UsdVol.ParticleField3DGaussianSplat.Define(stage, "/Splats")
+        stage.SetDefaultPrim(field_prim.GetPrim())
+        field_prim.CreatePositionsAttr().Set(_vec3f_array(splats.positions))
+        field_prim.CreateOrientationsAttr().Set(Vt.QuatfArray.FromNumpy(splats.orientations))
+        field_prim.CreateScalesAttr().Set(_vec3f_array(splats.scales))
+        field_prim.CreateOpacitiesAttr().Set(Vt.FloatArray.FromNumpy(splats.opacities))
+        field_prim.CreateRadianceSphericalHarmonicsDegreeAttr().Set(splats.sh_degree)
+        field_prim.CreateRadianceSphericalHarmonicsCoefficientsAttr().Set(_vec3f_array(splats.sh_coeffs.reshape(-1, 3)))
+        if len(splats):
+            lo, hi = splats.positions.min(axis=0), splats.positions.max(axis=0)
+            pad = 3.0 * splats.scales.max()
+            field_prim.CreateExtentAttr().Set(Vt.Vec3fArray.FromNumpy(np.stack([lo - pad, hi + pad])))
+        if splats.bound:
+            fp = field_prim.GetPrim()
+            fp.ApplyAPI("HoloGaussianOnMeshAPI")
+            fp.GetAttribute("holo:gom:faceIndex").Set(Vt.IntArray.FromNumpy(splats.face_index))
+            fp.GetAttribute("holo:gom:barycentric").Set(_vec3f_array(splats.barycentric))
+            fp.GetAttribute("holo:gom:normalOffset").Set(Vt.FloatArray.FromNumpy(splats.normal_offset))
+            fp.GetAttribute("holo:gom:inPlaneRotation").Set(Vt.FloatArray.FromNumpy(splats.in_plane_rotation))
+            fp.GetAttribute("holo:gom:inPlaneScale").Set(Vt.Vec2fArray.FromNumpy(splats.in_plane_scale))
+        save_layer(layer, target)
+
+        splat_prim = self._stage.DefinePrim(prim.GetPath().AppendChild("Splats"))
+        edit_layer = self._stage.GetEditTarget().GetLayer()
+        splat_prim.GetReferences().SetReferences([Sdf.Reference(_relative_asset(target, edit_layer))])
+        rel = splat_prim.CreateRelationship("holo:gom:mesh", custom=False)
+        if splats.bound:
+            rel.SetTargets([prim.GetPath().AppendChild("Geom")])
+        else:
+            rel.ClearTargets(True)
+        self._stamp(prim)
+        return target
+
+    def get_gaussians(self, name: str) -> GaussianSplats:
+        """Read a node's splats (and their face binding, if any)."""
+        prim = self._prim(name)
+        where = f"{self._where()}:{prim.GetPath()}/Splats"
+        splat_prim = prim.GetChild("Splats")
+        if not splat_prim or not splat_prim.IsA(UsdVol.ParticleField3DGaussianSplat):
+            raise SceneError(
+                f"{where}: no Gaussian splats (missing prim or unresolved .usdc reference); "
+                "write them with set_gaussians() or restore the assets/ folder"
+            )
+        gs = UsdVol.ParticleField3DGaussianSplat(splat_prim)
+
+        def arr(attr: Usd.Attribute, dtype: type) -> np.ndarray:
+            value = attr.Get()
+            return np.asarray(value if value is not None else [], dtype=dtype)
+
+        positions = arr(gs.GetPositionsAttr(), np.float32).reshape(-1, 3)
+        n = len(positions)
+        coeffs = arr(gs.GetRadianceSphericalHarmonicsCoefficientsAttr(), np.float32).reshape(-1, 3)
+        degree = gs.GetRadianceSphericalHarmonicsDegreeAttr().Get()
+        k = (int(degree) + 1) ** 2 if degree is not None else 1
+        if coeffs.shape[0] != n * k:
+            raise SceneError(
+                f"{where}: {coeffs.shape[0]} SH coefficients for {n} splats of degree {degree} "
+                f"(expected {n * k}); rewrite the splats"
+            )
+        binding: dict[str, np.ndarray] = {}
+        if splat_prim.HasAPI("HoloGaussianOnMeshAPI"):
+            binding = {
+                "face_index": arr(splat_prim.GetAttribute("holo:gom:faceIndex"), np.int32),
+                "barycentric": arr(splat_prim.GetAttribute("holo:gom:barycentric"), np.float32),
+                "normal_offset": arr(splat_prim.GetAttribute("holo:gom:normalOffset"), np.float32),
+                "in_plane_rotation": arr(splat_prim.GetAttribute("holo:gom:inPlaneRotation"), np.float32),
+                "in_plane_scale": arr(splat_prim.GetAttribute("holo:gom:inPlaneScale"), np.float32),
+            }
+        try:
+            return GaussianSplats(
+                positions=positions,
+                orientations=arr(gs.GetOrientationsAttr(), np.float32),
+                scales=arr(gs.GetScalesAttr(), np.float32),
+                opacities=arr(gs.GetOpacitiesAttr(), np.float32),
+                sh_coeffs=coeffs.reshape(n, k, 3),
+                **binding,
+            )
+        except InvalidDataError as exc:
+            raise SceneError(f"{where}: inconsistent splat arrays: {exc}; rewrite the splats") from exc
+
+    # ------------------------------------------------------------------ physics
+    def _material_path(self, prim: Usd.Prim) -> Sdf.Path:
+        if prim.GetPath() == BACKGROUND_PATH:
+            return MATERIALS_PATH.AppendChild("Background")
+        return MATERIALS_PATH.AppendChild(f"Object_{prim.GetName()}")
+
+    def set_physics(self, name: str, props: PhysicsProps) -> None:
+        """Author a node's rigid body, mass, material (bound with purpose 'physics') and damping.
+
+        ``props.mass = None`` makes the node a static collider (no RigidBodyAPI): the background always is one.
+        """
+        prim = self._prim(name)
+        if props.mass is not None:
+            if prim.GetPath() == BACKGROUND_PATH:
+                raise InvalidDataError("the background is static: give it PhysicsProps(mass=None, ...)")
+            UsdPhysics.RigidBodyAPI.Apply(prim).CreateRigidBodyEnabledAttr().Set(True)
+            mass_api = UsdPhysics.MassAPI.Apply(prim)
+            mass_api.CreateMassAttr().Set(props.mass)
+            mass_api.CreateCenterOfMassAttr().Set(Gf.Vec3f(*map(float, props.center_of_mass)))
+            if props.diagonal_inertia is not None:
+                mass_api.CreateDiagonalInertiaAttr().Set(Gf.Vec3f(*map(float, props.diagonal_inertia)))
+                mass_api.CreatePrincipalAxesAttr().Set(Gf.Quatf(1.0, 0.0, 0.0, 0.0))
+            prim.ApplyAPI("HoloPhysicsAPI")
+            prim.GetAttribute("holo:physics:linearDamping").Set(props.linear_damping)
+            prim.GetAttribute("holo:physics:angularDamping").Set(props.angular_damping)
+        elif prim.HasAPI(UsdPhysics.RigidBodyAPI):
+            UsdPhysics.RigidBodyAPI(prim).CreateRigidBodyEnabledAttr().Set(False)
+        material = UsdShade.Material.Define(self._stage, self._material_path(prim))
+        mat_api = UsdPhysics.MaterialAPI.Apply(material.GetPrim())
+        mat_api.CreateStaticFrictionAttr().Set(props.static_friction)
+        mat_api.CreateDynamicFrictionAttr().Set(props.dynamic_friction)
+        mat_api.CreateRestitutionAttr().Set(props.restitution)
+        mat_api.CreateDensityAttr().Set(props.density)
+        UsdShade.MaterialBindingAPI.Apply(prim).Bind(material, UsdShade.Tokens.weakerThanDescendants, "physics")
+        self._stamp(prim)
+
+    def get_physics(self, name: str) -> PhysicsProps:
+        """Read a node's physical parameters (mass, centre of mass, inertia, material, damping).
+
+        ``mass`` is None for a static collider (no enabled rigid body).
+        """
+        prim = self._prim(name)
+        where = f"{self._where()}:{prim.GetPath()}"
+        dynamic = prim.HasAPI(UsdPhysics.RigidBodyAPI) and bool(
+            UsdPhysics.RigidBodyAPI(prim).GetRigidBodyEnabledAttr().Get()
+        )
+        mass_api = UsdPhysics.MassAPI(prim)
+        mass = com = inertia = None
+        if dynamic:
+            mass = mass_api.GetMassAttr().Get() if prim.HasAPI(UsdPhysics.MassAPI) else None
+            if not mass:
+                raise SceneError(f"{where}: rigid body without a mass (UsdPhysics.MassAPI); set it with set_physics()")
+            com = mass_api.GetCenterOfMassAttr().Get()
+            inertia = mass_api.GetDiagonalInertiaAttr().Get()
+        material, _ = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial("physics")
+        if not material or not material.GetPrim().HasAPI(UsdPhysics.MaterialAPI):
+            raise SceneError(f"{where}: no physics material bound; write it with set_physics()")
+        mat = UsdPhysics.MaterialAPI(material.GetPrim())
+        has_damping = prim.HasAPI("HoloPhysicsAPI")
+        try:
+            return PhysicsProps(
+                mass=float(mass) if mass else None,
+                center_of_mass=np.array(com) if com is not None else np.zeros(3),
+                diagonal_inertia=np.array(inertia) if inertia is not None and any(inertia) else None,
+                density=float(mat.GetDensityAttr().Get() or 0.0),
+                static_friction=float(mat.GetStaticFrictionAttr().Get() or 0.0),
+                dynamic_friction=float(mat.GetDynamicFrictionAttr().Get() or 0.0),
+                restitution=float(mat.GetRestitutionAttr().Get() or 0.0),
+                linear_damping=float(prim.GetAttribute("holo:physics:linearDamping").Get() or 0.0)
+                if has_damping
+                else 0.0,
+                angular_damping=float(prim.GetAttribute("holo:physics:angularDamping").Get() or 0.0)
+                if has_damping
+                else 0.0,
+            )
+        except InvalidDataError as exc:
+            raise SceneError(f"{where}: {exc}") from exc
+
+    def set_collider(self, name: str, collider: Collider) -> None:
+        """Write a node's collider meshes under <node>/Collision (purpose 'guide', so viewers hide them).
+
+        ``convexHull`` and ``none`` author one mesh with that approximation. ``convexDecomposition`` with
+        several parts authors each part as a convex hull (the decomposition is explicit, so every simulator
+        sees the same parts); with one part it authors approximation ``convexDecomposition`` and leaves the
+        decomposition to the simulator. Parts left over from a weaker layer are deactivated.
+        """
+        prim = self._prim(name)
+        scope_path = prim.GetPath().AppendChild("Collision")
+        UsdGeom.Scope.Define(self._stage, scope_path)
+        if len(collider.parts) > 1:
+            approximation = UsdPhysics.Tokens.convexHull
+        else:
+            approximation = collider.approximation
+        names = [f"Part_{i:03d}" for i in range(len(collider.parts))]
+        existing = self._stage.GetPrimAtPath(scope_path).GetChildren()
+        for child in existing:
+            if child.GetName() not in names:
+                child.SetActive(False)
+        for part_name, part in zip(names, collider.parts, strict=True):
+            geom = self._write_mesh(scope_path.AppendChild(part_name), part)
+            geom.GetPrim().SetActive(True)
+            geom.CreatePurposeAttr().Set(UsdGeom.Tokens.guide)
+            UsdPhysics.CollisionAPI.Apply(geom.GetPrim()).CreateCollisionEnabledAttr().Set(True)
+            UsdPhysics.MeshCollisionAPI.Apply(geom.GetPrim()).CreateApproximationAttr().Set(approximation)
+        self._stamp(prim)
+
+    def get_collider(self, name: str) -> Collider:
+        """Read a node's collider meshes (any prims with CollisionAPI under the node)."""
+        prim = self._prim(name)
+        parts: list[MeshData] = []
+        approximations: list[str] = []
+        for child in Usd.PrimRange(prim):
+            if child.HasAPI(UsdPhysics.CollisionAPI) and child.IsA(UsdGeom.Mesh):
+                parts.append(self._read_mesh(child))
+                approx = UsdPhysics.MeshCollisionAPI(child).GetApproximationAttr().Get()
+                approximations.append(str(approx) if approx else "none")
+        if not parts:
+            raise SceneError(f"{self._where()}:{prim.GetPath()}: no collider; write one with set_collider()")
+        if len(parts) > 1:
+            kind = "convexDecomposition"
+        elif approximations[0] in ("convexHull", "convexDecomposition", "none"):
+            kind = approximations[0]
+        else:  # other UsdPhysics approximations (boundingCube, meshSimplification, ...) act as hulls or meshes
+            kind = "convexHull"
+        return Collider(approximation=kind, parts=parts)
+
+    # ------------------------------------------------------------------ relations and energies
+    def set_support(self, name: str, parent: str) -> None:
+        """Set the one node that ``name`` rests on (``'background'`` for the floor)."""
+        prim = self._prim(name)
+        parent_prim = self._prim(parent)
+        if parent_prim.GetPath() == prim.GetPath():
+            raise InvalidDataError(f"{name!r} cannot support itself")
+        prim.ApplyAPI("HoloRelationsAPI")
+        prim.GetRelationship("holo:supportedBy").SetTargets([parent_prim.GetPath()])
+        if not prim.GetRelationship("holo:beside").HasAuthoredTargets():
+            prim.GetRelationship("holo:beside").SetTargets([])
+        self._stamp(prim)
+
+    def get_support(self, name: str) -> str | None:
+        """Name of the node that ``name`` rests on, or None."""
+        rel = self._prim(name).GetRelationship("holo:supportedBy")
+        targets = rel.GetTargets() if rel else []
+        return self.node_name(targets[0]) if targets else None
+
+    def set_beside(self, name: str, others: Sequence[str]) -> None:
+        """Set the siblings ``name`` touches side by side."""
+        prim = self._prim(name)
+        paths = [self._prim(o).GetPath() for o in others]
+        prim.ApplyAPI("HoloRelationsAPI")
+        prim.GetRelationship("holo:beside").SetTargets(paths)
+        self._stamp(prim)
+
+    def get_beside(self, name: str) -> list[str]:
+        """Names of the siblings ``name`` touches."""
+        rel = self._prim(name).GetRelationship("holo:beside")
+        return [self.node_name(t) for t in (rel.GetTargets() if rel else [])]
+
+    def set_energies(self, name: str, energies: Energies) -> None:
+        """Record the energies the physics search measured for a node."""
+        prim = self._prim(name)
+        prim.ApplyAPI("HoloEnergyAPI")
+        prim.GetAttribute("holo:energy:stable").Set(float(energies.stable))
+        prim.GetAttribute("holo:energy:touch").Set(float(energies.touch))
+        prim.GetAttribute("holo:energy:penetration").Set(float(energies.penetration))
+        prim.GetAttribute("holo:energy:candidate").Set(int(energies.candidate))
+        self._stamp(prim)
+
+    def get_energies(self, name: str) -> Energies | None:
+        """The recorded energies of a node, or None if none were recorded."""
+        prim = self._prim(name)
+        if not prim.HasAPI("HoloEnergyAPI"):
+            return None
+        return Energies(
+            stable=float(prim.GetAttribute("holo:energy:stable").Get()),
+            touch=float(prim.GetAttribute("holo:energy:touch").Get()),
+            penetration=float(prim.GetAttribute("holo:energy:penetration").Get()),
+            candidate=int(prim.GetAttribute("holo:energy:candidate").Get()),
+        )
+
+    # ------------------------------------------------------------------ summary
+    def summary(self) -> SceneSummary:
+        """Summarise nodes, relations, physics and splat counts (what ``holousd info`` prints)."""
+        stage = self._stage
+        root = stage.GetRootLayer()
+        result = SceneSummary(
+            path=str(self.path) if self.path else root.identifier,
+            layers=[layer.identifier for layer in stage.GetLayerStack(includeSessionLayers=False)],
+            up_axis=str(UsdGeom.GetStageUpAxis(stage)),
+            meters_per_unit=float(UsdGeom.GetStageMetersPerUnit(stage)),
+            kilograms_per_unit=float(UsdPhysics.GetStageKilogramsPerUnit(stage)),
+            schema_version=schema_version_of(root),
+        )
+        for info in self.nodes():
+            prim = self._prim(info.name)
+            geom = prim.GetChild("Geom")
+            counts = UsdGeom.Mesh(geom).GetFaceVertexCountsAttr().Get() if geom and geom.IsA(UsdGeom.Mesh) else None
+            faces = int(sum(c - 2 for c in counts)) if counts else 0
+            splat_prim = prim.GetChild("Splats")
+            positions = (
+                UsdVol.ParticleField3DGaussianSplat(splat_prim).GetPositionsAttr().Get()
+                if splat_prim and splat_prim.IsA(UsdVol.ParticleField3DGaussianSplat)
+                else None
+            )
+            mass = UsdPhysics.MassAPI(prim).GetMassAttr().Get() if prim.HasAPI(UsdPhysics.MassAPI) else None
+            try:
+                collider = self.get_collider(info.name)
+                collider_kind, collider_parts = collider.approximation, len(collider.parts)
+            except SceneError:
+                collider_kind, collider_parts = None, 0
+            resolution = prim.GetAttribute("holo:sdf:resolution").Get() if prim.HasAPI("HoloSdfAPI") else None
+            result.nodes.append(
+                NodeSummary(
+                    name=info.name,
+                    path=info.path,
+                    role=info.role,
+                    instance_id=info.instance_id,
+                    supported_by=self.get_support(info.name) if info.role == "object" else None,
+                    beside=self.get_beside(info.name),
+                    mesh_faces=faces,
+                    sdf_resolution=list(resolution) if resolution is not None else None,
+                    splats=len(positions) if positions is not None else 0,
+                    mass_kg=float(mass) if mass else None,
+                    collider=collider_kind,
+                    collider_parts=collider_parts,
+                )
+            )
+        return result

@@ -1,0 +1,295 @@
+"""Small value types that the SceneGraph reads and writes.
+
+Conventions: metres, kilograms, seconds; object coordinates unless a name says ``world``; quaternions are
+scalar-last ``(x, y, z, w)`` like Warp, Newton and SciPy (USD's Gf.Quat constructors take ``w`` first: the
+SceneGraph converts).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from holousd._errors import InvalidDataError
+
+__all__ = [
+    "Collider",
+    "Energies",
+    "GaussianSplats",
+    "MeshData",
+    "NodeInfo",
+    "PhysicsProps",
+    "Pose",
+    "SdfField",
+]
+
+COLLIDER_APPROXIMATIONS = ("convexHull", "convexDecomposition", "none")
+"""UsdPhysics.MeshCollisionAPI approximations holousd authors."""
+
+
+def _array(value: object, dtype: type, shape: tuple[int | None, ...], what: str) -> np.ndarray:
+    """Return ``value`` as a C-contiguous array of ``dtype`` checked against ``shape`` (None = any) and finiteness."""
+    arr = np.ascontiguousarray(np.asarray(value, dtype=dtype))
+    if arr.ndim != len(shape) or any(s is not None and s != n for s, n in zip(shape, arr.shape, strict=True)):
+        want = "x".join("N" if s is None else str(s) for s in shape)
+        raise InvalidDataError(f"{what}: expected shape [{want}], got {list(arr.shape)}")
+    if arr.dtype.kind == "f" and not np.all(np.isfinite(arr)):
+        raise InvalidDataError(f"{what}: contains NaN or infinite values")
+    return arr
+
+
+@dataclass(kw_only=True)
+class Pose:
+    """Rigid world pose of an object Xform (the node state T_i)."""
+
+    translation: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    """[3] position of the object origin in world coordinates, metres."""
+    orientation: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 0.0, 1.0]))
+    """[4] unit quaternion (x, y, z, w) rotating object into world coordinates."""
+
+    def __post_init__(self) -> None:
+        self.translation = _array(self.translation, np.float64, (3,), "Pose.translation")
+        q = _array(self.orientation, np.float64, (4,), "Pose.orientation")
+        norm = float(np.linalg.norm(q))
+        if norm < 1e-8:
+            raise InvalidDataError("Pose.orientation: zero quaternion; use (0, 0, 0, 1) for no rotation")
+        self.orientation = q / norm
+
+    def rotation_matrix(self) -> np.ndarray:
+        """Return the [3, 3] rotation matrix of ``orientation``."""
+        x, y, z, w = self.orientation
+        return np.array(
+            [
+                [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+            ]
+        )
+
+    def matrix(self) -> np.ndarray:
+        """Return the [4, 4] homogeneous object-to-world matrix (column vectors: p_world = M @ p_obj)."""
+        m = np.eye(4)
+        m[:3, :3] = self.rotation_matrix()
+        m[:3, 3] = self.translation
+        return m
+
+    def apply(self, points: np.ndarray) -> np.ndarray:
+        """Map [N, 3] object-coordinate points to world coordinates."""
+        return np.asarray(points) @ self.rotation_matrix().T + self.translation
+
+
+@dataclass(kw_only=True)
+class MeshData:
+    """A triangle mesh in object coordinates."""
+
+    points: np.ndarray
+    """[N, 3] vertex positions, metres."""
+    faces: np.ndarray
+    """[F, 3] vertex indices of each triangle, counter-clockwise seen from outside."""
+
+    def __post_init__(self) -> None:
+        self.points = _array(self.points, np.float64, (None, 3), "MeshData.points")
+        self.faces = _array(self.faces, np.int64, (None, 3), "MeshData.faces")
+        if self.faces.size and (self.faces.min() < 0 or self.faces.max() >= len(self.points)):
+            raise InvalidDataError(
+                f"MeshData.faces: indices must lie in [0, {len(self.points) - 1}], "
+                f"got [{self.faces.min()}, {self.faces.max()}]"
+            )
+
+    @property
+    def bounds(self) -> np.ndarray:
+        """[2, 3] axis-aligned bounding box (min, max), metres."""
+        if len(self.points) == 0:
+            return np.zeros((2, 3))
+        return np.stack([self.points.min(axis=0), self.points.max(axis=0)])
+
+
+@dataclass(kw_only=True)
+class SdfField:
+    """A signed distance field sampled on a regular grid in object coordinates (negative inside)."""
+
+    grid: np.ndarray
+    """[X, Y, Z] float32 signed distances, metres; sample (i, j, k) sits at origin + voxel_size * (i, j, k)."""
+    origin: np.ndarray
+    """[3] position of sample (0, 0, 0) in object coordinates, metres."""
+    voxel_size: float
+    """Grid spacing, metres."""
+    iso_level: float = 0.0
+    """SDF value of the surface, metres."""
+
+    def __post_init__(self) -> None:
+        self.grid = _array(self.grid, np.float32, (None, None, None), "SdfField.grid")
+        self.origin = _array(self.origin, np.float64, (3,), "SdfField.origin")
+        if not (np.isfinite(self.voxel_size) and self.voxel_size > 0):
+            raise InvalidDataError(f"SdfField.voxel_size must be a positive number of metres, got {self.voxel_size}")
+        self.voxel_size = float(self.voxel_size)
+        self.iso_level = float(self.iso_level)
+
+    @property
+    def resolution(self) -> tuple[int, int, int]:
+        """Number of samples along x, y, z."""
+        x, y, z = self.grid.shape
+        return (int(x), int(y), int(z))
+
+
+_BINDING_FIELDS = ("face_index", "barycentric", "normal_offset", "in_plane_rotation", "in_plane_scale")
+
+
+@dataclass(kw_only=True)
+class GaussianSplats:
+    """3D Gaussian splats in object coordinates, optionally bound to the faces of the node's mesh.
+
+    Appearance is the UsdVol.ParticleField3DGaussianSplat convention: linear opacities in [0, 1], scales are
+    standard deviations in metres, radiance as real spherical-harmonics coefficients (degree 0 = base colour).
+    The binding fields are either all given (splats on a mesh, HoloGaussianOnMeshAPI) or all None.
+    """
+
+    positions: np.ndarray
+    """[N, 3] centres, metres."""
+    orientations: np.ndarray
+    """[N, 4] unit quaternions (x, y, z, w)."""
+    scales: np.ndarray
+    """[N, 3] standard deviations along the local axes, metres."""
+    opacities: np.ndarray
+    """[N] opacity in [0, 1]."""
+    sh_coeffs: np.ndarray
+    """[N, K, 3] spherical-harmonics radiance coefficients, K = (degree + 1) ** 2."""
+    face_index: np.ndarray | None = None
+    """[N] triangle of the mesh each splat is bound to."""
+    barycentric: np.ndarray | None = None
+    """[N, 3] barycentric coordinates on that triangle (rows sum to 1)."""
+    normal_offset: np.ndarray | None = None
+    """[N] offset along the face normal, metres."""
+    in_plane_rotation: np.ndarray | None = None
+    """[N] rotation about the face normal from the face's first edge, radians."""
+    in_plane_scale: np.ndarray | None = None
+    """[N, 2] standard deviations along the two in-plane axes, metres."""
+
+    def __post_init__(self) -> None:
+        self.positions = _array(self.positions, np.float32, (None, 3), "GaussianSplats.positions")
+        n = len(self.positions)
+        self.orientations = _array(self.orientations, np.float32, (n, 4), "GaussianSplats.orientations")
+        self.scales = _array(self.scales, np.float32, (n, 3), "GaussianSplats.scales")
+        self.opacities = _array(self.opacities, np.float32, (n,), "GaussianSplats.opacities")
+        self.sh_coeffs = _array(self.sh_coeffs, np.float32, (n, None, 3), "GaussianSplats.sh_coeffs")
+        k = self.sh_coeffs.shape[1]
+        if round(np.sqrt(k)) ** 2 != k or k == 0:
+            raise InvalidDataError(f"GaussianSplats.sh_coeffs: K must be (degree + 1) ** 2, got K = {k}")
+        given = [name for name in _BINDING_FIELDS if getattr(self, name) is not None]
+        if given and len(given) != len(_BINDING_FIELDS):
+            missing = sorted(set(_BINDING_FIELDS) - set(given))
+            raise InvalidDataError(f"GaussianSplats: binding fields are all or nothing; missing {missing}")
+        if given:
+            self.face_index = _array(self.face_index, np.int32, (n,), "GaussianSplats.face_index")
+            self.barycentric = _array(self.barycentric, np.float32, (n, 3), "GaussianSplats.barycentric")
+            self.normal_offset = _array(self.normal_offset, np.float32, (n,), "GaussianSplats.normal_offset")
+            self.in_plane_rotation = _array(
+                self.in_plane_rotation, np.float32, (n,), "GaussianSplats.in_plane_rotation"
+            )
+            self.in_plane_scale = _array(self.in_plane_scale, np.float32, (n, 2), "GaussianSplats.in_plane_scale")
+
+    def __len__(self) -> int:
+        return len(self.positions)
+
+    @property
+    def sh_degree(self) -> int:
+        """Spherical-harmonics degree of ``sh_coeffs``."""
+        return round(np.sqrt(self.sh_coeffs.shape[1])) - 1
+
+    @property
+    def bound(self) -> bool:
+        """True when the splats carry a face binding."""
+        return self.face_index is not None
+
+
+@dataclass(kw_only=True)
+class PhysicsProps:
+    """Rigid-body and material properties of a node (UsdPhysics MassAPI + MaterialAPI + HoloPhysicsAPI)."""
+
+    mass: float | None
+    """Total mass, kilograms; None for a static collider (the background), which gets no rigid body."""
+    center_of_mass: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    """[3] centre of mass in object coordinates, metres."""
+    diagonal_inertia: np.ndarray | None = None
+    """[3] moments of inertia about the object axes (taken as principal axes), kg m^2; None: the simulator
+    derives the inertia from the colliders."""
+    density: float = 1000.0
+    """Material density, kg / m^3 (mass wins where both are given, as in UsdPhysics)."""
+    static_friction: float = 0.5
+    """Static Coulomb friction coefficient."""
+    dynamic_friction: float = 0.5
+    """Dynamic Coulomb friction coefficient."""
+    restitution: float = 0.0
+    """Coefficient of restitution in [0, 1]."""
+    linear_damping: float = 0.0
+    """Linear velocity damping, 1/s."""
+    angular_damping: float = 0.0
+    """Angular velocity damping, 1/s."""
+
+    def __post_init__(self) -> None:
+        self.center_of_mass = _array(self.center_of_mass, np.float64, (3,), "PhysicsProps.center_of_mass")
+        if self.diagonal_inertia is not None:
+            self.diagonal_inertia = _array(self.diagonal_inertia, np.float64, (3,), "PhysicsProps.diagonal_inertia")
+        for name in ("density", "static_friction", "dynamic_friction", "restitution",
+                     "linear_damping", "angular_damping"):  # fmt: skip
+            value = float(getattr(self, name))
+            if not np.isfinite(value) or value < 0:
+                raise InvalidDataError(f"PhysicsProps.{name} must be a finite non-negative number, got {value}")
+            setattr(self, name, value)
+        if self.mass is not None:
+            self.mass = float(self.mass)
+            if not (np.isfinite(self.mass) and self.mass > 0):
+                raise InvalidDataError(f"PhysicsProps.mass must be a positive number of kilograms, got {self.mass}")
+
+
+@dataclass(kw_only=True)
+class Collider:
+    """The collision geometry of a node: one or more meshes in object coordinates."""
+
+    approximation: str
+    """'convexHull' (one hull), 'convexDecomposition' (several convex parts) or 'none' (the triangle mesh)."""
+    parts: list[MeshData]
+    """The collider meshes (one for convexHull and none)."""
+
+    def __post_init__(self) -> None:
+        if self.approximation not in COLLIDER_APPROXIMATIONS:
+            raise InvalidDataError(
+                f"Collider.approximation must be one of {COLLIDER_APPROXIMATIONS}, got {self.approximation!r}"
+            )
+        if not self.parts:
+            raise InvalidDataError("Collider.parts: at least one mesh is required")
+        if self.approximation != "convexDecomposition" and len(self.parts) != 1:
+            raise InvalidDataError(f"Collider: approximation {self.approximation!r} takes exactly one mesh")
+
+
+@dataclass(kw_only=True)
+class Energies:
+    """Energies the physics search measured for a node (HoloEnergyAPI)."""
+
+    stable: float
+    """E_stable: translation (m) + rotation (rad) deviation after simulating gravity."""
+    touch: float
+    """E_touch: distance to the support parent's surface, metres."""
+    penetration: float
+    """E_pene: intersection volume with other nodes, m^3."""
+    candidate: int = -1
+    """Index of the chosen completion candidate (-1 = none)."""
+
+
+@dataclass(kw_only=True, frozen=True)
+class NodeInfo:
+    """Identity of a scene-graph node (HoloNodeAPI)."""
+
+    name: str
+    """Node name: 'background' or the object's prim name under /World/Objects."""
+    path: str
+    """Prim path."""
+    role: str
+    """'background' or 'object'."""
+    instance_id: int
+    """Instance id in the observations' masks."""
+    observed_fraction: float
+    """Fraction of the surface the observations saw, [0, 1]."""
+    provenance: str
+    """Stage or tool that last wrote the node."""

@@ -1,0 +1,383 @@
+"""Scene validation: every OpenUSD validator (pxr.UsdValidation) plus holousd's own rules.
+
+Each problem names the prim (or layer) and says how to fix it. ``holousd validate`` exits 0 only when no
+problem of severity 'error' or 'warning' is found.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+from pxr import Sdf, Usd, UsdGeom, UsdPhysics, UsdValidation, UsdVol
+
+from holousd.usd._plugin import API_SCHEMAS, SCHEMA_VERSION
+from holousd.usd._scene import BACKGROUND_PATH, OBJECTS_PATH, schema_version_of
+
+__all__ = ["ValidationIssue", "ValidationReport", "validate"]
+
+
+@dataclass(kw_only=True, frozen=True)
+class ValidationIssue:
+    """One problem found in a scene."""
+
+    rule: str
+    """Identifier of the rule: 'holousd:<rule>' or the name of the OpenUSD validator."""
+    severity: str
+    """'error', 'warning' or 'info'."""
+    where: str
+    """Prim path, property path or layer the problem is about."""
+    message: str
+    """What is wrong."""
+    fix: str
+    """How to fix it."""
+
+    def __str__(self) -> str:
+        return f"{self.severity}: {self.where}: {self.message} (fix: {self.fix}) [{self.rule}]"
+
+
+@dataclass(kw_only=True)
+class ValidationReport:
+    """All problems found by :func:`validate`."""
+
+    scene: str
+    """Root layer of the validated scene."""
+    issues: list[ValidationIssue] = field(default_factory=list)
+    """Problems, in the order found."""
+
+    @property
+    def ok(self) -> bool:
+        """True when no error or warning was found (info notes are allowed)."""
+        return not any(i.severity in ("error", "warning") for i in self.issues)
+
+    def to_dict(self) -> dict:
+        """JSON-ready form: ``{"scene", "ok", "issues": [{"rule", "severity", "where", "message", "fix"}]}``."""
+        return {"scene": self.scene, "ok": self.ok, "issues": [asdict(i) for i in self.issues]}
+
+
+def _err(rule: str, where: str, message: str, fix: str) -> ValidationIssue:
+    """An error-severity issue of holousd rule ``holousd:<rule>``."""
+    return ValidationIssue(rule=f"holousd:{rule}", severity="error", where=where, message=message, fix=fix)
+
+
+_SEVERITY = {
+    UsdValidation.ValidationErrorType.Error: "error",
+    UsdValidation.ValidationErrorType.Warn: "warning",
+    UsdValidation.ValidationErrorType.Info: "info",
+}
+
+
+def _usd_validators(stage: Usd.Stage) -> list[ValidationIssue]:
+    validators = UsdValidation.ValidationRegistry().GetOrLoadAllValidators()
+    issues = []
+    for error in UsdValidation.ValidationContext(validators).Validate(stage):
+        if error.HasNoError():
+            continue
+        sites = []
+        for site in error.GetSites():
+            if site.IsProperty():
+                sites.append(str(site.GetProperty().GetPath()))
+            elif site.IsPrim():
+                sites.append(str(site.GetPrim().GetPath()))
+            elif site.GetLayer():
+                sites.append(site.GetLayer().identifier)
+        validator = error.GetValidator()
+        name = validator.GetMetadata().name if validator else error.GetName()
+        issues.append(
+            ValidationIssue(
+                rule=f"{name}:{error.GetName()}",
+                severity=_SEVERITY.get(error.GetType(), "error"),
+                where=", ".join(sites) or stage.GetRootLayer().identifier,
+                message=error.GetMessage(),
+                fix="see the OpenUSD validator's documentation for this rule",
+            )
+        )
+    return issues
+
+
+def _metadata_rules(stage: Usd.Stage) -> list[ValidationIssue]:
+    root = stage.GetRootLayer()
+    issues = []
+
+    def add(rule: str, message: str, fix: str) -> None:
+        issues.append(_err(rule, root.identifier, message, fix))
+
+    if not root.pseudoRoot.HasInfo("upAxis") or UsdGeom.GetStageUpAxis(stage) != UsdGeom.Tokens.z:
+        add(
+            "up-axis",
+            'root layer does not author upAxis = "Z"',
+            "UsdGeom.SetStageUpAxis(stage, 'Z') on the root layer (copy it into every new layer)",
+        )
+    if not root.pseudoRoot.HasInfo("metersPerUnit") or UsdGeom.GetStageMetersPerUnit(stage) != 1.0:
+        add(
+            "meters-per-unit",
+            "root layer does not author metersPerUnit = 1 (Newton assumes 0.01 when missing)",
+            "UsdGeom.SetStageMetersPerUnit(stage, 1.0) and author positions in metres",
+        )
+    if not root.pseudoRoot.HasInfo("kilogramsPerUnit") or UsdPhysics.GetStageKilogramsPerUnit(stage) != 1.0:
+        add(
+            "kilograms-per-unit",
+            "root layer does not author kilogramsPerUnit = 1",
+            "UsdPhysics.SetStageKilogramsPerUnit(stage, 1.0) and author masses in kilograms",
+        )
+    default = stage.GetDefaultPrim()
+    if not default or default.GetPath() != Sdf.Path("/World"):
+        add("default-prim", "defaultPrim is not /World", "stage.SetDefaultPrim(stage.GetPrimAtPath('/World'))")
+    version = schema_version_of(root)
+    uses_holo = any(any(s.startswith("Holo") for s in p.GetAppliedSchemas()) for p in stage.Traverse())
+    if version is None and uses_holo:
+        add(
+            "schema-version",
+            "root layer has no customLayerData holousd.schemaVersion",
+            f"set root.customLayerData = {{'holousd': {{'schemaVersion': {SCHEMA_VERSION}}}}}",
+        )
+    elif version is not None and version > SCHEMA_VERSION:
+        add(
+            "schema-version",
+            f"written with holousd schema version {version}, newer than {SCHEMA_VERSION}",
+            "upgrade holousd",
+        )
+    return issues
+
+
+def _schema_rules(stage: Usd.Stage) -> list[ValidationIssue]:
+    issues = []
+    for prim in stage.Traverse():
+        meta = prim.GetMetadata("apiSchemas")
+        names = list(meta.GetAddedOrExplicitItems()) if meta else []
+        for name in names:
+            if name.startswith("Holo") and name not in API_SCHEMAS:
+                issues.append(
+                    _err(
+                        "unknown-schema",
+                        str(prim.GetPath()),
+                        f"applies unknown holousd schema {name!r} (this release knows {', '.join(API_SCHEMAS)})",
+                        "upgrade holousd, or remove the schema from the prim's apiSchemas",
+                    )
+                )
+    return issues
+
+
+def _support_rules(stage: Usd.Stage) -> list[ValidationIssue]:
+    issues = []
+    background = stage.GetPrimAtPath(BACKGROUND_PATH)
+    objects_root = stage.GetPrimAtPath(OBJECTS_PATH)
+    objects = [p for p in objects_root.GetChildren() if p.HasAPI("HoloNodeAPI")] if objects_root else []
+    if objects and not background:
+        issues.append(
+            _err(
+                "support-tree",
+                str(BACKGROUND_PATH),
+                "scene has objects but no background node to root the support tree",
+                "SceneGraph.add_background()",
+            )
+        )
+    parent_of: dict[Sdf.Path, Sdf.Path] = {}
+    for prim in objects:
+        where = str(prim.GetPath())
+        beside = prim.GetRelationship("holo:beside")
+        for other in beside.GetTargets() if beside else []:
+            other_prim = stage.GetPrimAtPath(other)
+            if not other_prim or not other_prim.HasAPI("HoloNodeAPI"):
+                issues.append(
+                    _err(
+                        "dangling-relationship",
+                        f"{where}.holo:beside",
+                        f"targets {other}, which is not a node of the scene",
+                        "remove the target or add the missing object",
+                    )
+                )
+        rel = prim.GetRelationship("holo:supportedBy")
+        targets = rel.GetTargets() if rel else []
+        if len(targets) != 1:
+            issues.append(
+                _err(
+                    "support-tree",
+                    where,
+                    f"has {len(targets)} holo:supportedBy targets, needs exactly one",
+                    "SceneGraph.set_support(name, parent) with the node it rests on ('background' for the floor)",
+                )
+            )
+            continue
+        target = stage.GetPrimAtPath(targets[0])
+        if not target or not target.HasAPI("HoloNodeAPI"):
+            issues.append(
+                _err(
+                    "dangling-relationship",
+                    f"{where}.holo:supportedBy",
+                    f"targets {targets[0]}, which is not a node of the scene",
+                    "retarget it to an existing object or /World/Background",
+                )
+            )
+            continue
+        parent_of[prim.GetPath()] = targets[0]
+    reported: set[Sdf.Path] = set()
+    for start in parent_of:
+        seen = [start]
+        node = start
+        while node in parent_of:
+            node = parent_of[node]
+            if node in seen:
+                cycle = seen[seen.index(node) :]
+                if not reported.intersection(cycle):
+                    reported.update(cycle)
+                    chain = " -> ".join(str(p) for p in [*cycle, node])
+                    issues.append(
+                        _err(
+                            "support-cycle",
+                            str(node),
+                            f"support relations form a cycle: {chain}",
+                            "make one object of the cycle rest on another node or the background",
+                        )
+                    )
+                break
+            seen.append(node)
+    return issues
+
+
+def _physics_rules(stage: Usd.Stage) -> list[ValidationIssue]:
+    issues = []
+    objects_root = stage.GetPrimAtPath(OBJECTS_PATH)
+    objects = [p for p in objects_root.GetChildren() if p.HasAPI("HoloNodeAPI")] if objects_root else []
+    for prim in objects:
+        where = str(prim.GetPath())
+        if not prim.HasAPI(UsdPhysics.RigidBodyAPI):
+            issues.append(
+                _err(
+                    "rigid-body",
+                    where,
+                    "object has no UsdPhysics.RigidBodyAPI",
+                    "SceneGraph.set_physics(name, PhysicsProps(mass=...))",
+                )
+            )
+        mass = UsdPhysics.MassAPI(prim).GetMassAttr().Get() if prim.HasAPI(UsdPhysics.MassAPI) else None
+        if not mass or mass <= 0:
+            issues.append(
+                _err(
+                    "mass",
+                    where,
+                    "object has no positive mass authored",
+                    "SceneGraph.set_physics(name, PhysicsProps(mass=...)) in kilograms",
+                )
+            )
+        if not any(p.HasAPI(UsdPhysics.CollisionAPI) for p in Usd.PrimRange(prim)):
+            issues.append(
+                _err(
+                    "collider",
+                    where,
+                    "object has no collider (no prim with UsdPhysics.CollisionAPI)",
+                    "SceneGraph.set_collider(name, Collider(...))",
+                )
+            )
+    background = stage.GetPrimAtPath(BACKGROUND_PATH)
+    if background and not any(p.HasAPI(UsdPhysics.CollisionAPI) for p in Usd.PrimRange(background)):
+        issues.append(
+            _err(
+                "collider",
+                str(BACKGROUND_PATH),
+                "background has no collider: objects would fall forever",
+                "SceneGraph.set_collider('background', Collider(approximation='none', ...))",
+            )
+        )
+    return issues
+
+
+def _asset_rules(stage: Usd.Stage) -> list[ValidationIssue]:
+    issues = []
+    for prim in stage.Traverse():
+        if prim.HasAPI("HoloSdfAPI"):
+            asset = prim.GetAttribute("holo:sdf:file").Get()
+            if asset is None or not asset.resolvedPath:
+                issues.append(
+                    _err(
+                        "asset",
+                        f"{prim.GetPath()}.holo:sdf:file",
+                        f"SDF file {asset.path if asset else '<unset>'!r} cannot be resolved",
+                        "restore the assets/ folder beside the layer that wrote it, or re-run that stage",
+                    )
+                )
+        if prim.GetName() == "Splats" and prim.GetParent().HasAPI("HoloNodeAPI"):
+            if not prim.IsA(UsdVol.ParticleField3DGaussianSplat):
+                issues.append(
+                    _err(
+                        "asset",
+                        str(prim.GetPath()),
+                        "Splats prim is not a ParticleField3DGaussianSplat (its .usdc reference did not resolve?)",
+                        "restore the assets/ folder beside the layer that wrote it, or rewrite the splats",
+                    )
+                )
+                continue
+            issues.extend(_splat_rules(stage, prim))
+    return issues
+
+
+def _splat_rules(stage: Usd.Stage, prim: Usd.Prim) -> list[ValidationIssue]:
+    gs = UsdVol.ParticleField3DGaussianSplat(prim)
+
+    def length(attr: Usd.Attribute) -> int | None:
+        value = attr.Get() if attr else None
+        return None if value is None else len(value)
+
+    n = length(gs.GetPositionsAttr()) or 0
+    degree = gs.GetRadianceSphericalHarmonicsDegreeAttr().Get()
+    k = (int(degree) + 1) ** 2 if degree is not None else 1
+    expected = {
+        "orientations": (gs.GetOrientationsAttr(), n),
+        "scales": (gs.GetScalesAttr(), n),
+        "opacities": (gs.GetOpacitiesAttr(), n),
+        "radiance:sphericalHarmonicsCoefficients": (gs.GetRadianceSphericalHarmonicsCoefficientsAttr(), n * k),
+    }
+    if prim.HasAPI("HoloGaussianOnMeshAPI"):
+        for name in ("faceIndex", "barycentric", "normalOffset", "inPlaneRotation", "inPlaneScale"):
+            expected[f"holo:gom:{name}"] = (prim.GetAttribute(f"holo:gom:{name}"), n)
+    issues = []
+    for name, (attr, want) in expected.items():
+        got = length(attr)
+        if got != want:
+            issues.append(
+                _err(
+                    "splat-arrays",
+                    f"{prim.GetPath()}.{name}",
+                    f"has {got if got is not None else 'no'} elements, expected {want} ({n} splats)",
+                    "rewrite the splats with SceneGraph.set_gaussians()",
+                )
+            )
+    if prim.HasAPI("HoloGaussianOnMeshAPI"):
+        targets = prim.GetRelationship("holo:gom:mesh").GetTargets()
+        mesh = stage.GetPrimAtPath(targets[0]) if targets else None
+        if not mesh or not mesh.IsA(UsdGeom.Mesh):
+            issues.append(
+                _err(
+                    "splat-binding",
+                    f"{prim.GetPath()}.holo:gom:mesh",
+                    "bound splats do not target an existing mesh",
+                    "target the node's Geom mesh (SceneGraph.set_gaussians does this)",
+                )
+            )
+        else:
+            counts = UsdGeom.Mesh(mesh).GetFaceVertexCountsAttr().Get() or []
+            faces = prim.GetAttribute("holo:gom:faceIndex").Get()
+            if faces is not None and len(faces) and int(np.max(faces)) >= len(counts):
+                issues.append(
+                    _err(
+                        "splat-binding",
+                        f"{prim.GetPath()}.holo:gom:faceIndex",
+                        f"face index {int(np.max(faces))} but {mesh.GetPath()} has {len(counts)} faces",
+                        "refit the splats on the current mesh (stage s3_refine)",
+                    )
+                )
+    return issues
+
+
+def validate(stage: Usd.Stage) -> ValidationReport:
+    """Run all OpenUSD validators and holousd's rules on ``stage``.
+
+    holousd's rules: root-layer metadata (upAxis Z, metersPerUnit 1, kilogramsPerUnit 1, defaultPrim /World,
+    schema version); support relations form one tree rooted at the background (exactly one parent each, no
+    cycles, no dangling targets); each object has a rigid body, a positive mass and a collider; SDF and splat
+    assets resolve; splat array lengths agree with each other and with the bound mesh.
+    """
+    report = ValidationReport(scene=stage.GetRootLayer().identifier)
+    for rules in (_usd_validators, _metadata_rules, _schema_rules, _support_rules, _physics_rules, _asset_rules):
+        report.issues.extend(rules(stage))
+    return report
