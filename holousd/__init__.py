@@ -12,6 +12,7 @@ from holousd._errors import HolousdError, InvalidDataError, SceneError, SchemaVe
 from holousd.usd import (  # noqa: E402
     BACKGROUND,
     SCHEMA_VERSION,
+    CameraData,
     Collider,
     Energies,
     GaussianSplats,
@@ -32,6 +33,7 @@ __version__ = "0.1.0"
 __all__ = [
     "BACKGROUND",
     "SCHEMA_VERSION",
+    "CameraData",
     "Collider",
     "Energies",
     "GaussianSplats",

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from pxr import Sdf, Usd, UsdGeom, UsdPhysics
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdPhysics
 
 import holousd
 from holousd import (
@@ -422,3 +422,37 @@ def test_in_memory_scene_cannot_hold_assets() -> None:
 def test_unknown_node_is_clear() -> None:
     with pytest.raises(SceneError, match="no node 'ghost'"):
         SceneGraph.create().get_pose("ghost")
+
+
+def test_camera_round_trip_and_usd_projection_agree(tmp_path: Path) -> None:
+    """The UsdGeom.Camera we author projects points exactly where the OpenCV pinhole does."""
+    from scipy.spatial.transform import Rotation
+
+    scene = SceneGraph.create(tmp_path / "cams.usda")
+    K = np.array([[300.0, 0, 140.0], [0, 280.0, 100.0], [0, 0, 1]])
+    c2w = np.eye(4)
+    c2w[:3, :3] = Rotation.from_euler("xyz", [-110, 5, 30], degrees=True).as_matrix()
+    c2w[:3, 3] = [0.5, -2.0, 1.4]
+    image = tmp_path / "frames" / "000012.png"
+    camera = holousd.CameraData(name="Frame_00012", K=K, cam_to_world=c2w, width=256, height=192,
+                                image=str(image), frame_id="000012")  # fmt: skip
+    scene.set_camera(camera)
+    scene.save()
+    (got,) = SceneGraph.open(tmp_path / "cams.usda").get_cameras()
+    np.testing.assert_allclose(got.K, K, atol=1e-4)
+    np.testing.assert_allclose(got.cam_to_world, c2w, atol=1e-9)
+    assert (got.width, got.height, got.frame_id) == (256, 192, "000012")
+    assert Path(got.image) == image  # stored relative to the layer, resolved back
+    # project with USD's own camera model (Gf.Camera) and compare with the pinhole
+    gf = UsdGeom.Camera(scene.stage.GetPrimAtPath("/World/Cameras/Frame_00012")).GetCamera(Usd.TimeCode.Default())
+    gf.clippingRange = Gf.Range1f(0.01, 100.0)
+    view_proj = gf.frustum.ComputeViewMatrix() * gf.frustum.ComputeProjectionMatrix()
+    rng = np.random.default_rng(1)
+    cam_points = np.c_[rng.uniform(-0.5, 0.5, (20, 2)), rng.uniform(1.0, 4.0, 20)]  # in front of the camera
+    for pc in cam_points:
+        pw = c2w[:3, :3] @ pc + c2w[:3, 3]
+        clip = Gf.Vec4d(*pw, 1.0) * view_proj
+        ndc = np.array([clip[0], clip[1]]) / clip[3]
+        usd_pixel = [(ndc[0] + 1) / 2 * 256, (1 - ndc[1]) / 2 * 192]
+        cv_pixel = (K @ pc)[:2] / pc[2]
+        np.testing.assert_allclose(usd_pixel, cv_pixel, atol=1e-3)

@@ -10,6 +10,7 @@ from holousd.usd._scene import (
     SceneSummary,
 )
 from holousd.usd._types import (
+    CameraData,
     Collider,
     Energies,
     GaussianSplats,
@@ -25,6 +26,7 @@ __all__ = [
     "API_SCHEMAS",
     "BACKGROUND",
     "SCHEMA_VERSION",
+    "CameraData",
     "Collider",
     "Energies",
     "GaussianSplats",

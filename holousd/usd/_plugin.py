@@ -23,6 +23,7 @@ API_SCHEMAS = (
     "HoloPhysicsAPI",
     "HoloRelationsAPI",
     "HoloEnergyAPI",
+    "HoloCameraAPI",
 )
 """The applied API schemas defined in ``schemas/holousd/schema.usda``."""
 

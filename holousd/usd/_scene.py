@@ -31,6 +31,7 @@ from holousd._errors import InvalidDataError, SceneError, SchemaVersionError
 from holousd.usd._layers import layer_path, new_layer_over, save_layer
 from holousd.usd._plugin import SCHEMA_VERSION
 from holousd.usd._types import (
+    CameraData,
     Collider,
     Energies,
     GaussianSplats,
@@ -43,6 +44,7 @@ from holousd.usd._types import (
 
 __all__ = [
     "BACKGROUND",
+    "CAMERAS_PATH",
     "BACKGROUND_PATH",
     "MATERIALS_PATH",
     "OBJECTS_PATH",
@@ -59,10 +61,15 @@ PHYSICS_SCENE_PATH = Sdf.Path("/World/PhysicsScene")
 BACKGROUND_PATH = Sdf.Path("/World/Background")
 OBJECTS_PATH = Sdf.Path("/World/Objects")
 MATERIALS_PATH = Sdf.Path("/World/Materials")
+CAMERAS_PATH = Sdf.Path("/World/Cameras")
 BACKGROUND = "background"
 """Node name of the background (the root of the support tree)."""
 
 _GRAVITY = 9.81
+_FILM_UNITS_PER_PIXEL = 0.1
+"""Camera film scale: one pixel is 0.1 film units (tenths of a millimetre), so apertures read like a sensor's."""
+_CV_TO_USD_CAMERA = np.diag([1.0, -1.0, -1.0, 1.0])
+"""OpenCV camera axes (x right, y down, z forward) -> USD camera axes (x right, y up, looking down -z)."""
 _SDF_KEY = "sdf"
 
 
@@ -858,6 +865,91 @@ class SceneGraph:
             penetration=float(prim.GetAttribute("holo:energy:penetration").Get()),
             candidate=int(prim.GetAttribute("holo:energy:candidate").Get()),
         )
+
+    # ------------------------------------------------------------------ cameras
+    def set_camera(self, camera: CameraData) -> Sdf.Path:
+        """Write an observation camera as a UsdGeom.Camera under /World/Cameras (+ HoloCameraAPI).
+
+        The OpenCV pinhole (K, cam_to_world) maps exactly onto USD's camera: focalLength = 0.1 fx,
+        horizontalAperture = 0.1 width, verticalAperture = 0.1 fx height / fy, and the principal point goes to
+        the aperture offsets. Image paths are stored relative to the layer being written when possible.
+        """
+        if not Sdf.Path.IsValidIdentifier(camera.name):
+            raise InvalidDataError(f"camera name {camera.name!r} is not a valid prim name (letters, digits, '_')")
+        if not self._stage.GetPrimAtPath(CAMERAS_PATH):
+            UsdGeom.Scope.Define(self._stage, CAMERAS_PATH)
+        cam = UsdGeom.Camera.Define(self._stage, CAMERAS_PATH.AppendChild(camera.name))
+        fx, fy, cx, cy = camera.K[0, 0], camera.K[1, 1], camera.K[0, 2], camera.K[1, 2]
+        h_ap = _FILM_UNITS_PER_PIXEL * camera.width
+        v_ap = _FILM_UNITS_PER_PIXEL * fx * camera.height / fy
+        cam.CreateProjectionAttr().Set(UsdGeom.Tokens.perspective)
+        cam.CreateFocalLengthAttr().Set(float(_FILM_UNITS_PER_PIXEL * fx))
+        cam.CreateHorizontalApertureAttr().Set(float(h_ap))
+        cam.CreateVerticalApertureAttr().Set(float(v_ap))
+        cam.CreateHorizontalApertureOffsetAttr().Set(float((camera.width / 2.0 - cx) * h_ap / camera.width))
+        cam.CreateVerticalApertureOffsetAttr().Set(float((cy - camera.height / 2.0) * v_ap / camera.height))
+        cam.CreateClippingRangeAttr().Set(Gf.Vec2f(0.01, 1000.0))
+        usd_matrix = camera.cam_to_world @ _CV_TO_USD_CAMERA
+        cam.ClearXformOpOrder()
+        cam.AddTransformOp(UsdGeom.XformOp.PrecisionDouble).Set(Gf.Matrix4d(usd_matrix.T.tolist()))
+        prim = cam.GetPrim()
+        prim.ApplyAPI("HoloCameraAPI")
+        image = ""
+        if camera.image:
+            image_path = Path(camera.image)
+            anchor = layer_path(self._stage.GetEditTarget().GetLayer())
+            image = (
+                _relative_asset(image_path, self._stage.GetEditTarget().GetLayer())
+                if (anchor is not None and image_path.is_absolute())
+                else camera.image
+            )
+        prim.GetAttribute("holo:camera:image").Set(Sdf.AssetPath(image))
+        prim.GetAttribute("holo:camera:frameId").Set(camera.frame_id)
+        prim.GetAttribute("holo:camera:resolution").Set(Gf.Vec2i(camera.width, camera.height))
+        return prim.GetPath()
+
+    def get_cameras(self) -> list[CameraData]:
+        """All observation cameras under /World/Cameras, in prim order (image paths resolved when possible)."""
+        parent = self._stage.GetPrimAtPath(CAMERAS_PATH)
+        cameras = []
+        for prim in parent.GetChildren() if parent else []:
+            if not prim.IsA(UsdGeom.Camera):
+                continue
+            where = f"{self._where()}:{prim.GetPath()}"
+            cam = UsdGeom.Camera(prim)
+            resolution = prim.GetAttribute("holo:camera:resolution").Get()
+            if resolution is None or min(resolution) <= 0:
+                raise SceneError(f"{where}: camera has no holo:camera:resolution; write it with set_camera()")
+            width, height = int(resolution[0]), int(resolution[1])
+            focal = cam.GetFocalLengthAttr().Get()
+            h_ap, v_ap = cam.GetHorizontalApertureAttr().Get(), cam.GetVerticalApertureAttr().Get()
+            h_off, v_off = cam.GetHorizontalApertureOffsetAttr().Get(), cam.GetVerticalApertureOffsetAttr().Get()
+            fx, fy = focal * width / h_ap, focal * height / v_ap
+            K = np.array(
+                [[fx, 0.0, width / 2.0 - h_off * width / h_ap], [0.0, fy, height / 2.0 + v_off * height / v_ap],
+                 [0.0, 0.0, 1.0]]
+            )  # fmt: skip
+            usd_matrix = np.array(cam.ComputeLocalToWorldTransform(Usd.TimeCode.Default())).T
+            image_attr = prim.GetAttribute("holo:camera:image")
+            asset = image_attr.Get()
+            image = None
+            if asset is not None and asset.path:  # anchor to the layer that authored it, even if the file is gone
+                image = asset.resolvedPath or image_attr.GetPropertyStack()[0].layer.ComputeAbsolutePath(asset.path)
+            try:
+                cameras.append(
+                    CameraData(
+                        name=prim.GetName(),
+                        K=K,
+                        cam_to_world=usd_matrix @ _CV_TO_USD_CAMERA,
+                        width=width,
+                        height=height,
+                        image=image,
+                        frame_id=str(prim.GetAttribute("holo:camera:frameId").Get() or ""),
+                    )
+                )
+            except InvalidDataError as exc:
+                raise SceneError(f"{where}: {exc}") from exc
+        return cameras
 
     # ------------------------------------------------------------------ summary
     def summary(self) -> SceneSummary:

@@ -14,6 +14,7 @@ import numpy as np
 from holousd._errors import InvalidDataError
 
 __all__ = [
+    "CameraData",
     "Collider",
     "Energies",
     "GaussianSplats",
@@ -293,3 +294,36 @@ class NodeInfo:
     """Fraction of the surface the observations saw, [0, 1]."""
     provenance: str
     """Stage or tool that last wrote the node."""
+
+
+@dataclass(kw_only=True)
+class CameraData:
+    """A pinhole observation camera in the OpenCV convention (x right, y down, z forward; world Z up, metres)."""
+
+    name: str
+    """Prim name under /World/Cameras (a valid identifier, e.g. 'Frame_00012')."""
+    K: np.ndarray
+    """[3, 3] intrinsics: fx, fy, cx, cy in pixels (pixel centres at integer + 0.5 coordinates)."""
+    cam_to_world: np.ndarray
+    """[4, 4] rigid camera-to-world transform (OpenCV camera axes)."""
+    width: int
+    """Image width, pixels."""
+    height: int
+    """Image height, pixels."""
+    image: str | None = None
+    """Path of the frame's RGB image (absolute, or relative to the scene layer), if any."""
+    frame_id: str = ""
+    """Identifier of the frame in its capture."""
+
+    def __post_init__(self) -> None:
+        self.K = _array(self.K, np.float64, (3, 3), "CameraData.K")
+        self.cam_to_world = _array(self.cam_to_world, np.float64, (4, 4), "CameraData.cam_to_world")
+        rot = self.cam_to_world[:3, :3]
+        if not np.allclose(rot @ rot.T, np.eye(3), atol=1e-4) or np.linalg.det(rot) < 0:
+            raise InvalidDataError(f"CameraData {self.name!r}: cam_to_world rotation is not a proper rotation")
+        if self.width <= 0 or self.height <= 0:
+            raise InvalidDataError(
+                f"CameraData {self.name!r}: image size must be positive, got {self.width}x{self.height}"
+            )
+        if self.K[0, 0] <= 0 or self.K[1, 1] <= 0:
+            raise InvalidDataError(f"CameraData {self.name!r}: focal lengths must be positive")
