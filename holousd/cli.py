@@ -19,6 +19,7 @@ _COMMAND_MODULES = (
     "holousd.synth._cli",
     "holousd.render._cli",
     "holousd.physics._cli",
+    "holousd.stages._cli",
 )
 """Modules that contribute sub-commands, in the order ``--help`` lists them."""
 

@@ -35,7 +35,8 @@ def _stack_scene(path: Path) -> SceneGraph:
         scene.add_object(name, instance_id=i, pose=Pose(translation=position))
         scene.set_mesh(name, mesh)
         scene.set_collider(name, Collider(approximation="convexHull", parts=[mesh]))
-        scene.set_physics(name, PhysicsProps(mass=float(np.prod(mesh.bounds[1] - mesh.bounds[0]) * 500.0)))
+        volume = float(np.prod(mesh.bounds[1] - mesh.bounds[0]))
+        scene.set_physics(name, PhysicsProps(mass=volume * 500.0, static_friction=0.7, dynamic_friction=0.65))
         scene.set_support(name, parent)
     scene.save()
     return scene
@@ -66,6 +67,11 @@ def test_exported_scene_simulates_in_newton(tmp_path: Path) -> None:
     result = builder.add_usd(str(out))
     model = builder.finalize(device="cpu")
     path_to_body = {str(k): v for k, v in result["path_body_map"].items()}
+    # the authored friction reaches Newton (it reads bindings on the collider prims themselves)
+    colliding = (model.shape_flags.numpy() & int(newton.ShapeFlags.COLLIDE_SHAPES)) != 0
+    of_top_a = colliding & (model.shape_body.numpy() == path_to_body["/World/Objects/top_a"])
+    assert of_top_a.sum() == 1
+    np.testing.assert_allclose(model.shape_material_mu.numpy()[of_top_a], 0.65, atol=1e-6)
     solver = newton.solvers.SolverXPBD(model, iterations=8, enable_restitution=False)
     pipeline = newton.CollisionPipeline(model)
     contacts = pipeline.contacts()

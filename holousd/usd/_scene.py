@@ -720,7 +720,23 @@ class SceneGraph:
         mat_api.CreateRestitutionAttr().Set(props.restitution)
         mat_api.CreateDensityAttr().Set(props.density)
         UsdShade.MaterialBindingAPI.Apply(prim).Bind(material, UsdShade.Tokens.weakerThanDescendants, "physics")
+        self._bind_colliders(prim)
         self._stamp(prim)
+
+    def _bind_colliders(self, prim: Usd.Prim) -> None:
+        """Bind the node's physics material directly on each collider prim too.
+
+        UsdPhysics resolves bindings through inheritance, but some importers (Newton 1.8) only read a binding
+        authored on the collider prim itself; binding both ways serves every reader.
+        """
+        material = UsdShade.Material.Get(self._stage, self._material_path(prim))
+        if not material:
+            return
+        for child in Usd.PrimRange(prim):
+            if child.HasAPI(UsdPhysics.CollisionAPI):
+                UsdShade.MaterialBindingAPI.Apply(child).Bind(
+                    material, UsdShade.Tokens.weakerThanDescendants, "physics"
+                )
 
     def get_physics(self, name: str) -> PhysicsProps:
         """Read a node's physical parameters (mass, centre of mass, inertia, material, damping).
@@ -790,6 +806,7 @@ class SceneGraph:
             geom.CreatePurposeAttr().Set(UsdGeom.Tokens.guide)
             UsdPhysics.CollisionAPI.Apply(geom.GetPrim()).CreateCollisionEnabledAttr().Set(True)
             UsdPhysics.MeshCollisionAPI.Apply(geom.GetPrim()).CreateApproximationAttr().Set(approximation)
+        self._bind_colliders(prim)
         self._stamp(prim)
 
     def get_collider(self, name: str) -> Collider:

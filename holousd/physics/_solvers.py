@@ -1,0 +1,135 @@
+"""Solver registry: one stepping interface over Newton's XPBD and MuJoCo solvers.
+
+``xpbd``: :class:`newton.solvers.SolverXPBD` with Newton's own collision pipeline (GJK/MPR on convex hulls,
+triangle-mesh contacts for meshes). ``mujoco``: :class:`newton.solvers.SolverMuJoCo`, MuJoCo's C engine on CPU
+(``use_mujoco_cpu``) or MuJoCo Warp on a GPU, with MuJoCo's *own* collision detection and soft-constraint
+solver. Sharing nothing but the imported model, the two make an independent cross-check.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ._errors import PhysicsInputError
+from ._model import PhysicsModel
+
+__all__ = ["SOLVERS", "SolverConfig", "Stepper", "make_stepper"]
+
+SOLVERS = ("xpbd", "mujoco")
+"""Solver names accepted everywhere a solver is chosen."""
+
+
+@dataclass(kw_only=True)
+class SolverConfig:
+    """Which solver steps the model and its accuracy settings."""
+
+    name: str = "xpbd"
+    """Solver name, one of :data:`SOLVERS`."""
+    iterations: int = 8
+    """XPBD constraint iterations per step (MuJoCo uses its own defaults)."""
+
+
+class Stepper:
+    """Advances a model one step at a time and exposes body poses and velocities as numpy arrays."""
+
+    def __init__(self, pm: PhysicsModel, config: SolverConfig) -> None:
+        """Create the solver, states and (for XPBD) the collision pipeline.
+
+        Raises:
+            PhysicsInputError: Unknown solver name.
+        """
+        import newton
+
+        if config.name not in SOLVERS:
+            raise PhysicsInputError(f"unknown solver {config.name!r}; choose one of {', '.join(SOLVERS)}")
+        self.pm = pm
+        self.name = config.name
+        model = pm.model
+        self._state_0 = model.state()
+        self._state_1 = model.state()
+        self._control = model.control()
+        self._pipeline = None
+        self._contacts = None
+        if config.name == "xpbd":
+            restitution = any(m.restitution > 0.0 for m in pm.materials.values())
+            self._solver = newton.solvers.SolverXPBD(
+                model, iterations=config.iterations, enable_restitution=restitution
+            )
+            self._pipeline = newton.CollisionPipeline(model)
+            self._contacts = self._pipeline.contacts()
+        else:
+            with warnings.catch_warnings():
+                # Newton 1.8 pins mujoco ~=3.17 in metadata but runs with the installed 4.0; the warning is noise.
+                warnings.filterwarnings("ignore", message="MuJoCo dependency version mismatch")
+                # MuJoCo keeps its own solver iteration defaults; ``iterations`` is an XPBD setting.
+                self._solver = newton.solvers.SolverMuJoCo(
+                    model, use_mujoco_cpu=pm.device == "cpu", enable_multiccd=True
+                )
+        # Free-joint velocity slots of each body (MuJoCo integrates joint coordinates, not body twists).
+        qd_start = model.joint_qd_start.numpy()
+        child = model.joint_child.numpy()
+        self._body_qd_start = np.full(model.body_count, -1, dtype=np.int64)
+        for j in range(model.joint_count):
+            self._body_qd_start[child[j]] = qd_start[j]
+
+    @property
+    def body_q(self) -> np.ndarray:
+        """[B, 7] current body poses (px, py, pz, qx, qy, qz, qw), world frame, metres (a copy)."""
+        return self._state_0.body_q.numpy().copy()
+
+    @property
+    def body_qd(self) -> np.ndarray:
+        """[B, 6] current body twists (v_com m/s, omega rad/s), world frame (a copy)."""
+        return self._state_0.body_qd.numpy().copy()
+
+    def add_velocity(self, body: int, linear: np.ndarray, angular: np.ndarray | None = None) -> None:
+        """Add a linear (m/s, at the centre of mass) and angular (rad/s) velocity to one body, world frame."""
+        ang = np.zeros(3) if angular is None else np.asarray(angular, dtype=np.float64)
+        delta = np.concatenate([np.asarray(linear, dtype=np.float64), ang])  # [6]
+        qd = self._state_0.body_qd.numpy()
+        qd[body] += delta
+        self._write(self._state_0.body_qd, qd)
+        if self.name == "mujoco":
+            jqd = self._state_0.joint_qd.numpy()
+            s = self._body_qd_start[body]
+            jqd[s : s + 6] += delta  # free joint of a root body: parent frame = world, linear at the COM
+            self._write(self._state_0.joint_qd, jqd)
+
+    def scale_velocities(self, linear: np.ndarray, angular: np.ndarray) -> None:
+        """Multiply every body's linear / angular velocity by per-body factors ([B] each)."""
+        if self.name == "xpbd":
+            qd = self._state_0.body_qd.numpy()  # [B, 6] (v_com, omega), world
+            qd[:, :3] *= linear[:, None]
+            qd[:, 3:] *= angular[:, None]
+            self._write(self._state_0.body_qd, qd)
+        else:
+            jqd = self._state_0.joint_qd.numpy()
+            for b in np.flatnonzero((linear != 1.0) | (angular != 1.0)):
+                s = self._body_qd_start[b]
+                if s >= 0:
+                    jqd[s : s + 3] *= linear[b]
+                    jqd[s + 3 : s + 6] *= angular[b]
+            self._write(self._state_0.joint_qd, jqd)
+
+    def step(self, dt: float) -> None:
+        """Advance by ``dt`` seconds (collision detection included)."""
+        self._state_0.clear_forces()
+        if self._pipeline is not None:
+            self._pipeline.collide(self._state_0, self._contacts)
+        self._solver.step(self._state_0, self._state_1, self._control, self._contacts, dt)
+        self._state_0, self._state_1 = self._state_1, self._state_0
+
+    @staticmethod
+    def _write(array: Any, values: np.ndarray) -> None:
+        # On the CPU device .numpy() is a view, so in-place edits already landed; elsewhere copy back.
+        if not array.device.is_cpu:
+            array.assign(values)
+
+
+def make_stepper(pm: PhysicsModel, config: SolverConfig | None = None) -> Stepper:
+    """Create a :class:`Stepper` for a built model."""
+    return Stepper(pm, config or SolverConfig())
