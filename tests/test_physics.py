@@ -413,3 +413,16 @@ def test_cli_help_shows_defaults(capsys) -> None:
     with pytest.raises(SystemExit):
         _run_cli(["stability", "--help"])
     assert "(default: 2.0)" in capsys.readouterr().out
+
+
+def test_hollow_room_shell_is_not_filled_by_hulls() -> None:
+    # A static room shell (outer box + inward-facing inner box) as one triangle mesh: its connected pieces are
+    # each convex, but hulling them one by one would fill the room and throw the box inside it out.
+    outer_p, outer_f = box(0.5, 0.5, 0.5)
+    inner_p, inner_f = box(0.4, 0.4, 0.4)
+    outer_p[:, 2] += 0.4
+    inner_p[:, 2] += 0.4
+    shell = (np.concatenate([outer_p, inner_p]), np.concatenate([outer_f, inner_f[:, ::-1] + len(outer_p)]))
+    stage = make_scene([Obj(name="a", mesh=box(0.05, 0.05, 0.05), position=(0, 0, 0.05))], extra_background=[shell])
+    (verdict,) = physics.stability(stage).objects
+    assert verdict.stable, verdict

@@ -212,10 +212,11 @@ def _apply_materials(builder: Any, stage: Usd.Stage, cfg: ModelConfig) -> dict[s
 def _convexify_mesh_colliders(stage: Usd.Stage, *, hull_convex: bool, decompose: bool) -> None:
     """Re-author triangle-mesh colliders as convex parts on the working stage (see ModelConfig).
 
-    Each collider Mesh with ``physics:approximation = none`` is split into connected pieces; a closed convex
-    piece becomes its hull, a non-convex piece stays a triangle mesh or (``decompose``) becomes CoACD parts.
-    When anything changes, the original prim is deactivated and a sibling ``<name>_HoloParts`` Xform with the
-    same local transform and physics material holds the new ``Part_###`` colliders.
+    Each collider Mesh with ``physics:approximation = none`` is split into connected pieces (unless a piece
+    bounds a cavity, e.g. a hollow room shell, when the mesh stays whole); a closed convex piece becomes its
+    hull, a non-convex piece stays a triangle mesh or (``decompose``) becomes CoACD parts. When anything
+    changes, the original prim is deactivated and a sibling ``<name>_HoloParts`` Xform with the same local
+    transform and physics material holds the new ``Part_###`` colliders.
     """
     import trimesh
     from pxr import UsdGeom, UsdPhysics, UsdShade
@@ -239,7 +240,12 @@ def _convexify_mesh_colliders(stage: Usd.Stage, *, hull_convex: bool, decompose:
         pts, faces = _scene.mesh_arrays(UsdGeom.Mesh(prim))
         if len(faces) == 0:
             continue
-        pieces = trimesh.Trimesh(pts, faces, process=True).split(only_watertight=False)
+        whole = trimesh.Trimesh(pts, faces, process=True)
+        pieces = whole.split(only_watertight=False)
+        if any(p.is_watertight and p.volume < 0 for p in pieces):
+            # a piece with inward normals bounds a cavity (a hollow room shell: outer box + inverted inner box);
+            # hulling pieces one by one would fill the cavity, so the mesh must be treated as one solid
+            pieces = [whole]
         parts: list[tuple[np.ndarray, np.ndarray, str]] = []
         changed = False
         for piece in pieces:
