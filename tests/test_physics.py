@@ -426,3 +426,15 @@ def test_hollow_room_shell_is_not_filled_by_hulls() -> None:
     stage = make_scene([Obj(name="a", mesh=box(0.05, 0.05, 0.05), position=(0, 0, 0.05))], extra_background=[shell])
     (verdict,) = physics.stability(stage).objects
     assert verdict.stable, verdict
+
+
+def test_detailed_hull_keeps_its_flat_bottom() -> None:
+    # 130-vertex ball cut flat at the bottom: Newton's default 64-vertex hull cap rounded the flat off and the
+    # ball rolled ~30 degrees; ModelConfig.max_hull_vertices keeps every hull vertex.
+    from holousd.synth._catalog import _ball
+
+    ball = _ball(0.06)
+    assert len(ball.points) > 64
+    stage = make_scene([Obj(name="a", mesh=(ball.points, ball.faces), position=(0, 0, 0))])
+    (verdict,) = physics.stability(stage).objects
+    assert verdict.stable, verdict

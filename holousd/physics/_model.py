@@ -46,6 +46,10 @@ class ModelConfig:
     decompose_concave_meshes: bool = False
     """Also replace the non-convex pieces by a CoACD decomposition (needed by MuJoCo, which collides every mesh
     as its convex hull)."""
+    max_hull_vertices: int = 1024
+    """Vertex cap of the convex hulls Newton builds from ``convexHull`` colliders (qhull needs a positive cap).
+    Newton's own default (64) silently rounds off detailed hulls: a ball with a flat contact disc lost the
+    disc and rolled 30 degrees."""
     device: str | None = None
     """Warp device; None picks Warp's preferred device (CUDA when present, else ``"cpu"``)."""
 
@@ -151,7 +155,9 @@ def build_model(
     builder = newton.ModelBuilder(up_axis=_stage_up_axis(work))
     builder.default_shape_cfg.mu = cfg.default_friction
     builder.default_shape_cfg.restitution = cfg.default_restitution
-    result = builder.add_usd(work, load_visual_shapes=False, load_sites=False)
+    result = builder.add_usd(
+        work, load_visual_shapes=False, load_sites=False, mesh_maxhullvert=cfg.max_hull_vertices
+    )
     path_body = {str(k): int(v) for k, v in result["path_body_map"].items()}
     missing = [p for p in dynamic_list if p not in path_body]
     if missing:

@@ -112,7 +112,9 @@ def _ball(radius: float, flat: float = 0.25, rings: int = 8, segments: int = 16)
     for j in range(segments):
         k = (j + 1) % segments
         faces.append([last + j, last + k, top])
-    return MeshData(points=np.array(points), faces=np.array(faces))
+    points = np.array(points)
+    points[:, 2] -= points[0, 2]  # the flat bottom at z = 0
+    return MeshData(points=points, faces=np.array(faces))
 
 
 def _placed(mesh: MeshData, offset: tuple[float, float, float]) -> MeshData:
@@ -308,7 +310,8 @@ def _small(rng: np.random.Generator, category: str, size: tuple[float, ...] | No
         density, tex, surfaces = 400.0, _texture(rng, "stripes", _BRIGHT, 0.03, 0.3), []
     elif category == "ball":
         (r,) = size or (rng.uniform(0.05, 0.1),)
-        parts, extent, rnd = [_ball(r)], (2 * r, 2 * r, 2 * r), True
+        ball = _ball(r)
+        parts, extent, rnd = [ball], (2 * r, 2 * r, float(ball.points[:, 2].max())), True
         density, tex, surfaces = 150.0, _texture(rng, "checker", _BRIGHT, r * 0.6, 0.5), []
     else:
         raise ValueError(f"unknown small-object category {category!r}; choose one of {SMALL_CATEGORIES}")
