@@ -155,9 +155,7 @@ def build_model(
     builder = newton.ModelBuilder(up_axis=_stage_up_axis(work))
     builder.default_shape_cfg.mu = cfg.default_friction
     builder.default_shape_cfg.restitution = cfg.default_restitution
-    result = builder.add_usd(
-        work, load_visual_shapes=False, load_sites=False, mesh_maxhullvert=cfg.max_hull_vertices
-    )
+    result = builder.add_usd(work, load_visual_shapes=False, load_sites=False, mesh_maxhullvert=cfg.max_hull_vertices)
     path_body = {str(k): int(v) for k, v in result["path_body_map"].items()}
     missing = [p for p in dynamic_list if p not in path_body]
     if missing:

@@ -35,8 +35,22 @@ from holousd.render._scene import (
     write_mp4,
     write_png,
 )
+from holousd.render._volume import (
+    RayBatch,
+    RenderOutput,
+    SdfGridSet,
+    VolumeConfig,
+    laplace_density,
+    render_rays,
+)
 
 __all__ = [
+    "RayBatch",
+    "RenderOutput",
+    "SdfGridSet",
+    "VolumeConfig",
+    "laplace_density",
+    "render_rays",
     "FLATNESS",
     "SH_C0",
     "Camera",

@@ -1,9 +1,19 @@
 """Stage-to-stage transforms of the reconstruction pipeline (ARCHITECTURE.md section 2).
 
-Each stage module exposes ``run(scene, observations, config) -> SceneGraph`` that pushes and saves its own layer.
+Each stage is a module with ``run(...) -> SceneGraph`` that pushes and saves its own layer:
+
+- :mod:`observe` (s0_observe): cameras, image references, one node per instance -> ``00_observe.usda``;
+- :mod:`fit` (s1_fit geometry): per-instance SDFs by TSDF fusion + differentiable volume rendering,
+  watertight meshes -> ``10_fit.usda`` (presets ``fit.FAST``, ``fit.DEFAULT``, ``fit.BEST``);
+- :mod:`appearance`: Gaussians-on-mesh fitting (stage 1 appearance and stage 3 refinement).
+
+Stage configs share class names (``FitConfig``), so they are reached through their module:
+``holousd.stages.fit.FitConfig``.
 """
 
 from holousd.stages import _appearance as appearance
+from holousd.stages import _fit as fit
+from holousd.stages import _observe as observe
 from holousd.stages._appearance import AppearanceConfig, AppearanceResult, fit_appearance
 
-__all__ = ["AppearanceConfig", "AppearanceResult", "appearance", "fit_appearance"]
+__all__ = ["AppearanceConfig", "AppearanceResult", "appearance", "fit", "fit_appearance", "observe"]

@@ -1,0 +1,287 @@
+"""Dense voxel grids over an object's extent: projection into posed frames, TSDF fusion, visual-hull carving.
+
+Everything here is numpy and works in world coordinates (metres, Z up) with OpenCV pinhole cameras
+(camera-to-world poses, pixel (u, v) centred at image coordinates (u, v)). Depth is z-depth along the optical
+axis. Label images hold instance ids (0 = background, the room shell).
+
+The fusion keeps, per voxel, the evidence a stage needs to decide inside / outside of one instance:
+
+- a truncated signed distance averaged over the frames where the voxel lies within the truncation band of the
+  instance's observed surface (plus ``+trunc`` from frames where it lies in observed free space),
+- votes ``inside`` (the voxel lies behind the instance's observed surface) and ``outside`` (it lies in free space
+  in front of some observed surface, or behind the room shell, which no object can be).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = [
+    "FusionResult",
+    "Views",
+    "VoxelGrid",
+    "box_sdf",
+    "carve_hull",
+    "fuse_tsdf",
+    "sample_grid",
+    "signed_distance_from_occupancy",
+]
+
+
+@dataclass(kw_only=True)
+class VoxelGrid:
+    """An axis-aligned regular grid in world coordinates: sample (i, j, k) at ``origin + voxel_size * (i, j, k)``."""
+
+    origin: np.ndarray
+    """[3] world position of sample (0, 0, 0), metres."""
+    voxel_size: float
+    """Grid spacing, metres."""
+    shape: tuple[int, int, int]
+    """Number of samples along x, y, z."""
+
+    @classmethod
+    def from_bounds(cls, lo: np.ndarray, hi: np.ndarray, voxel_size: float, pad: int = 2) -> VoxelGrid:
+        """Grid covering the box [lo, hi] with ``pad`` extra samples on every side."""
+        lo = np.asarray(lo, dtype=np.float64)
+        hi = np.maximum(np.asarray(hi, dtype=np.float64), lo)
+        origin = lo - pad * voxel_size
+        shape = np.ceil((hi - lo) / voxel_size).astype(int) + 1 + 2 * pad
+        return cls(origin=origin, voxel_size=float(voxel_size), shape=(int(shape[0]), int(shape[1]), int(shape[2])))
+
+    @property
+    def size(self) -> int:
+        """Number of samples."""
+        return int(np.prod(self.shape))
+
+    @property
+    def upper(self) -> np.ndarray:
+        """[3] world position of the last sample, metres."""
+        return self.origin + self.voxel_size * (np.asarray(self.shape) - 1)
+
+    def points(self) -> np.ndarray:
+        """[X*Y*Z, 3] float32 world positions of the samples in C order (x slowest)."""
+        axes = [self.origin[i] + self.voxel_size * np.arange(self.shape[i]) for i in range(3)]
+        return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3).astype(np.float32)
+
+    def refined(self, factor: int) -> VoxelGrid:
+        """The grid over the same box with ``factor`` times finer spacing."""
+        shape = tuple(int((n - 1) * factor + 1) for n in self.shape)
+        return VoxelGrid(origin=self.origin.copy(), voxel_size=self.voxel_size / factor, shape=shape)  # type: ignore[arg-type]
+
+
+@dataclass(kw_only=True)
+class Views:
+    """Posed frames held in memory: labels and (optionally) depth, as the fusion reads them."""
+
+    intrinsics: np.ndarray
+    """[N, 3, 3] pinhole intrinsics, pixels."""
+    poses: np.ndarray
+    """[N, 4, 4] camera-to-world matrices (OpenCV camera)."""
+    labels: np.ndarray
+    """[N, H, W] int32 instance ids (0 = background)."""
+    depth: np.ndarray | None = None
+    """[N, H, W] float32 metric z-depth (0 = no value), or None."""
+
+    def __len__(self) -> int:
+        return len(self.poses)
+
+    @property
+    def height(self) -> int:
+        """Image height, pixels."""
+        return int(self.labels.shape[1])
+
+    @property
+    def width(self) -> int:
+        """Image width, pixels."""
+        return int(self.labels.shape[2])
+
+    def project(self, i: int, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Project [P, 3] world points into frame ``i``.
+
+        Returns:
+            (row [P] int, col [P] int, z [P] float camera z-depth, valid [P] bool: in front of the camera and
+            inside the image).
+        """
+        pose = self.poses[i]
+        rot = pose[:3, :3].astype(np.float32)
+        cam = (points - pose[:3, 3].astype(np.float32)) @ rot  # [P, 3] camera coordinates
+        z = cam[:, 2]
+        k = self.intrinsics[i]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            inv_z = 1.0 / np.where(z > 1e-6, z, 1.0)
+            u = np.rint(k[0, 0] * cam[:, 0] * inv_z + k[0, 2])
+            v = np.rint(k[1, 1] * cam[:, 1] * inv_z + k[1, 2])
+        valid = (z > 1e-3) & (u >= 0) & (u < self.width) & (v >= 0) & (v < self.height)
+        col = np.where(valid, u, 0).astype(np.int64)
+        row = np.where(valid, v, 0).astype(np.int64)
+        return row, col, z, valid
+
+    def footprint(self, i: int, depth: float) -> float:
+        """Size of one pixel at ``depth`` metres in frame ``i``, metres."""
+        k = self.intrinsics[i]
+        return float(depth / (0.5 * (k[0, 0] + k[1, 1])))
+
+
+@dataclass(kw_only=True)
+class FusionResult:
+    """Per-voxel evidence of one instance (flat arrays over the grid's samples, C order)."""
+
+    tsdf: np.ndarray
+    """[P] float32 averaged truncated signed distance, metres (``+trunc`` where nothing was observed)."""
+    weight: np.ndarray
+    """[P] float32 number of observations averaged into ``tsdf``."""
+    inside: np.ndarray
+    """[P] int32 frames in which the voxel lies behind the instance's observed surface."""
+    outside: np.ndarray
+    """[P] int32 frames in which the voxel lies in free space or behind the room shell."""
+
+    def solid_sdf(self, trunc: float) -> np.ndarray:
+        """[P] signed distance: the TSDF where observed, else ``-trunc`` inside (behind the surface and never
+        seen free) and ``+trunc`` elsewhere."""
+        hidden_inside = (self.weight == 0) & (self.inside > 0) & (self.outside == 0)
+        sdf = np.where(self.weight > 0, self.tsdf, trunc).astype(np.float32)
+        sdf[hidden_inside] = -trunc
+        return sdf
+
+
+def fuse_tsdf(
+    points: np.ndarray,
+    views: Views,
+    instance: int,
+    trunc: float,
+    frames: Sequence[int] | None = None,
+    chunk: int = 1 << 20,
+) -> FusionResult:
+    """Fuse the masked depth of one instance into a truncated signed distance at ``points``.
+
+    Per frame and voxel with ``delta = depth - z`` (positive: the voxel is in front of the observed surface):
+    ``delta >= trunc`` is free space (``+trunc``, any label); ``|delta| < trunc`` on an ``instance`` pixel is a
+    surface sample; ``delta <= -trunc`` on an ``instance`` pixel votes inside; ``delta <= -trunc`` on a
+    background pixel (behind the room shell) votes outside. Surface samples near another instance's surface
+    carry no evidence.
+
+    Args:
+        points: [P, 3] world positions (float32).
+        views: Frames with depth (metres).
+        instance: Instance id to fuse.
+        trunc: Truncation distance, metres.
+        frames: Frames to use (default: all).
+        chunk: Voxels processed at once.
+    """
+    if views.depth is None:
+        raise ValueError("fuse_tsdf needs metric depth")
+    n = len(points)
+    sdf_sum = np.zeros(n, np.float32)
+    weight = np.zeros(n, np.float32)
+    inside = np.zeros(n, np.int32)
+    outside = np.zeros(n, np.int32)
+    frames = range(len(views)) if frames is None else frames
+    for start in range(0, n, chunk):
+        sl = slice(start, min(n, start + chunk))
+        pts = points[sl]
+        for i in frames:
+            row, col, z, valid = views.project(i, pts)
+            d = views.depth[i][row, col]
+            lab = views.labels[i][row, col]
+            valid &= d > 0
+            delta = d - z
+            own = valid & (lab == instance)
+            free = valid & (delta >= trunc)
+            band = own & (delta > -trunc) & ~free
+            sdf_sum[sl] += np.where(band, delta, 0.0) + np.where(free, trunc, 0.0)
+            weight[sl] += band | free
+            inside[sl] += own & (delta <= -trunc)
+            outside[sl] += free | (valid & (lab == 0) & (delta <= -trunc))
+    tsdf = np.where(weight > 0, sdf_sum / np.maximum(weight, 1.0), trunc).astype(np.float32)
+    return FusionResult(tsdf=tsdf, weight=weight, inside=inside, outside=outside)
+
+
+def carve_hull(
+    points: np.ndarray,
+    views: Views,
+    instance: int,
+    frames: Sequence[int] | None = None,
+    tolerance: float = 0.0,
+    chunk: int = 1 << 20,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Visual hull of one instance from masks alone.
+
+    A voxel is carved when it projects onto background (label 0) in more than ``tolerance`` of the frames
+    that see it; it is kept when it also projects onto the instance in at least one frame. Other instances'
+    pixels carry no evidence (they may occlude it).
+
+    Args:
+        points: [P, 3] world positions.
+        views: Frames (labels only are read).
+        instance: Instance id.
+        frames: Frames to use (default: all).
+        tolerance: Fraction of observing frames allowed to see background (robustness to mask noise).
+        chunk: Voxels processed at once.
+
+    Returns:
+        (kept [P] bool, hits [P] int32 frames seeing the instance there).
+    """
+    n = len(points)
+    hits = np.zeros(n, np.int32)
+    bg = np.zeros(n, np.int32)
+    seen = np.zeros(n, np.int32)
+    frames = range(len(views)) if frames is None else frames
+    for start in range(0, n, chunk):
+        sl = slice(start, min(n, start + chunk))
+        for i in frames:
+            row, col, _, valid = views.project(i, points[sl])
+            lab = views.labels[i][row, col]
+            seen[sl] += valid
+            hits[sl] += valid & (lab == instance)
+            bg[sl] += valid & (lab == 0)
+    kept = (hits > 0) & (bg <= tolerance * np.maximum(seen, 1))
+    return kept, hits
+
+
+def sample_grid(values: np.ndarray, grid: VoxelGrid, points: np.ndarray, outside: float) -> np.ndarray:
+    """Trilinear interpolation of [X, Y, Z] ``values`` at [P, 3] world points (``outside`` beyond the grid)."""
+    idx = (np.asarray(points, dtype=np.float64) - grid.origin) / grid.voxel_size  # [P, 3]
+    shape = np.asarray(grid.shape)
+    inside = np.all((idx >= 0) & (idx <= shape - 1), axis=1)
+    idx = np.clip(idx, 0, shape - 1 - 1e-6)
+    base = np.floor(idx).astype(np.int64)
+    base = np.minimum(base, np.maximum(shape - 2, 0))
+    frac = idx - base
+    out = np.zeros(len(idx))
+    for dx in (0, 1):
+        for dy in (0, 1):
+            for dz in (0, 1):
+                w = (
+                    (frac[:, 0] if dx else 1 - frac[:, 0])
+                    * (frac[:, 1] if dy else 1 - frac[:, 1])
+                    * (frac[:, 2] if dz else 1 - frac[:, 2])
+                )
+                ix = np.minimum(base[:, 0] + dx, shape[0] - 1)
+                iy = np.minimum(base[:, 1] + dy, shape[1] - 1)
+                iz = np.minimum(base[:, 2] + dz, shape[2] - 1)
+                out += w * values[ix, iy, iz]
+    return np.where(inside, out, outside).astype(np.float32)
+
+
+def box_sdf(points: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """[P] signed distance of [P, 3] points to the axis-aligned box [lo, hi] (negative inside)."""
+    centre = (np.asarray(lo) + np.asarray(hi)) / 2
+    half = (np.asarray(hi) - np.asarray(lo)) / 2
+    q = np.abs(points - centre) - half
+    outside = np.linalg.norm(np.maximum(q, 0.0), axis=1)
+    inside = np.minimum(q.max(axis=1), 0.0)
+    return (outside + inside).astype(np.float32)
+
+
+def signed_distance_from_occupancy(occupied: np.ndarray, voxel_size: float) -> np.ndarray:
+    """[X, Y, Z] Euclidean signed distance (voxel-centre accurate, negative inside) of a boolean occupancy."""
+    from scipy.ndimage import distance_transform_edt
+
+    if not occupied.any():
+        return np.full(occupied.shape, 10.0 * voxel_size * max(occupied.shape), np.float32)
+    outside = distance_transform_edt(~occupied)
+    inside = distance_transform_edt(occupied)
+    return ((outside - inside + np.where(occupied, 0.5, -0.5)) * voxel_size).astype(np.float32)

@@ -1,0 +1,889 @@
+"""Stage s1_fit (geometry): per-instance SDF grids and watertight meshes (layer ``10_fit.usda``).
+
+Pipeline per capture:
+
+1. Frames are read once (labels, colour, depth, normals; long captures are subsampled).
+2. Background: with metric depth the room shell is TSDF-fused from background pixels at a coarse voxel and
+   meshed (a closed slab a truncation distance thick, usable as a static collider); the floor height is the
+   robust lowest level of the background points. Without metric depth the floor is the lowest point of the
+   objects' visual hulls and the background mesh is a floor slab under the observed area.
+3. Extent of each instance: back-projected masked depth (robust percentiles), or without depth a visual hull
+   carved from the masks over a scene bound around the cameras. Voxel size from the instance's size
+   (``target_resolution`` samples along its largest side), never finer than a fraction of the pixel
+   footprint, and coarsened until the grid fits ``max_voxels``.
+4. Initialisation, coarse to fine (two levels): TSDF fusion of the instance's masked depth (free space and
+   "behind the room shell" carve, "behind the instance's surface" fills the unseen inside), intersected with
+   the observed extent and the half-space above the floor; without depth, the carved visual hull turned into a
+   signed distance.
+5. Refinement by differentiable volume rendering (:mod:`holousd.render._volume`): RGB, instance-mask
+   cross-entropy, depth (L1, or scale-and-shift invariant for relative depth), normals, eikonal, smoothness and
+   the ObjectSDF++ overlap penalty ``relu(-s_a - s_b)``; rays are instance-balanced (half of each frame's rays
+   spread evenly over the instances it shows).
+6. Overlaps left between instances are split at the mid-surface, grids are re-distanced, meshed (marching
+   cubes, largest component, closed by positive padding, face budget from the object's size) and written in
+   object coordinates (origin at the bottom centre of the mesh's bounding box, pose = translation).
+"""
+
+from __future__ import annotations
+
+import os
+import resource
+import sys
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from holousd._errors import HolousdError
+from holousd.geometry._grid import (
+    Views,
+    VoxelGrid,
+    box_sdf,
+    carve_hull,
+    fuse_tsdf,
+    sample_grid,
+    signed_distance_from_occupancy,
+)
+from holousd.geometry._meshing import face_budget, mesh_from_sdf
+from holousd.io._observations import Observations
+from holousd.render._volume import VolumeConfig
+from holousd.usd._scene import BACKGROUND, SceneGraph
+from holousd.usd._types import MeshData, Pose, SdfField
+
+if TYPE_CHECKING:
+    import torch
+
+__all__ = [
+    "BEST",
+    "DEFAULT",
+    "FAST",
+    "FIT_LAYER",
+    "PRESETS",
+    "FitConfig",
+    "FitResult",
+    "LossWeights",
+    "ObjectFit",
+    "fit",
+    "run",
+    "with_seed",
+]
+
+FIT_LAYER = "10_fit.usda"
+"""File name of the layer this stage writes."""
+
+
+@dataclass(kw_only=True)
+class LossWeights:
+    """Weights of the refinement energy terms."""
+
+    rgb: float = 1.0
+    """Colour MSE (colours in [0, 1])."""
+    mask: float = 0.5
+    """Instance-mask cross-entropy (background + instances)."""
+    depth: float = 5.0
+    """Depth L1 per metre (scale-and-shift invariant when the depth is relative)."""
+    normal: float = 0.05
+    """Normal L1 + (1 - cosine)."""
+    eikonal: float = 0.05
+    """(|grad s| - 1)^2 on voxels near the surface."""
+    smooth: float = 0.02
+    """Squared discrete Laplacian (times the voxel size) on voxels near the surface."""
+    overlap: float = 10.0
+    """relu(-s_a - s_b) per metre at points inside two instances' boxes."""
+
+
+@dataclass(kw_only=True)
+class FitConfig:
+    """Settings of s1_fit geometry (see the presets :data:`FAST`, :data:`DEFAULT`, :data:`BEST`)."""
+
+    target_resolution: int = 64
+    """Samples along an instance's largest side (its voxel size is its size divided by this)."""
+    min_voxel: float = 0.004
+    """Smallest voxel size, metres."""
+    footprint_factor: float = 0.5
+    """Voxels are at least this many pixel footprints (at the instance's median depth)."""
+    max_voxels: int = 300_000
+    """Largest grid per instance (the voxel grows until the grid fits), samples."""
+    trunc_voxels: float = 3.0
+    """TSDF truncation distance, voxels."""
+    fusion_frames: int = 50
+    """Frames used for fusion and extents (evenly subsampled), at most."""
+    render_frames: int = 200
+    """Frames kept in memory for the refinement, at most."""
+    extent_margin: float = 1.0
+    """Margin around an instance's observed extent that its solid may fill, voxels."""
+    hull_voxel: float = 0.06
+    """Voxel of the scene-wide visual hull that bounds instances without depth, metres."""
+    scene_reach: float = 3.0
+    """Without depth: how far beyond the camera centres the scene may extend, metres."""
+    hull_tolerance: float = 0.02
+    """Visual hull: fraction of observing frames allowed to see background at a kept voxel."""
+    iterations: int = 200
+    """Volume-rendering refinement steps (0: initialisation only)."""
+    rays: int = 2048
+    """Rays per refinement step."""
+    frames_per_step: int = 8
+    """Frames the rays of one step come from."""
+    balanced_fraction: float = 0.5
+    """Share of each frame's rays spread evenly over the instances it shows."""
+    sdf_lr: float = 0.1
+    """Adam learning rate of the SDF grids, voxels per step."""
+    color_lr: float = 0.05
+    """Adam learning rate of the colour logits."""
+    overlap_points: int = 512
+    """Points per overlapping instance pair and step for the overlap penalty."""
+    weights: LossWeights = field(default_factory=LossWeights)
+    """Loss weights."""
+    volume: VolumeConfig = field(default_factory=VolumeConfig)
+    """Ray sampling and density settings."""
+    faces_per_m2: float = 40_000.0
+    """Face budget per square metre of an instance's largest extent squared."""
+    background_voxel: float = 0.05
+    """Voxel of the background (room shell) fusion, metres."""
+    background_faces: int = 30_000
+    """Face budget of the background mesh."""
+    resolve_overlaps: bool = True
+    """Split volumes claimed by two instances at their mid-surface before meshing."""
+    seed: int = 0
+    """Seed of ray sampling and jitter."""
+    device: str = "cpu"
+    """Torch device of the refinement."""
+    threads: int | None = None
+    """Torch CPU threads during the refinement (restored afterwards); None keeps torch's setting. 1 is far more
+    robust than 2 on a machine whose cores other processes share (OpenMP spin-waits collapse under contention)."""
+    progress: bool = True
+    """Show a tqdm progress bar on stderr."""
+
+
+FAST = FitConfig(target_resolution=48, footprint_factor=0.6, max_voxels=120_000, fusion_frames=30, iterations=40,
+                 rays=1024, frames_per_step=4, faces_per_m2=20_000.0)  # fmt: skip
+"""About half a minute per 18-object scene on 2 cores: TSDF initialisation plus a short refinement."""
+DEFAULT = FitConfig()
+"""Balanced preset: finer grids and a few hundred refinement steps."""
+BEST = FitConfig(target_resolution=96, footprint_factor=0.4, max_voxels=600_000, fusion_frames=100, iterations=600,
+                 rays=4096, faces_per_m2=80_000.0)  # fmt: skip
+"""Slowest preset: finest grids, longest refinement."""
+PRESETS = {"fast": FAST, "default": DEFAULT, "best": BEST}
+"""Named presets for the CLI."""
+
+
+@dataclass(kw_only=True)
+class ObjectFit:
+    """Per-instance outcome of the fit."""
+
+    name: str
+    """Node name."""
+    instance_id: int
+    """Instance id in the masks."""
+    pixels: int
+    """Mask pixels over the frames read."""
+    voxel_size: float
+    """Grid spacing, metres."""
+    resolution: tuple[int, int, int]
+    """Grid samples along x, y, z."""
+    faces: int = 0
+    """Faces of the written mesh (0: no mesh)."""
+    watertight: bool = False
+    """The written mesh is watertight."""
+    fallback: str = ""
+    """How the mesh was made when marching cubes failed ('' = it did not)."""
+    bounds_world: np.ndarray | None = None
+    """[2, 3] world bounding box of the mesh, metres."""
+
+
+@dataclass(kw_only=True)
+class FitResult:
+    """What :func:`fit` did."""
+
+    scene: SceneGraph
+    """The scene with ``10_fit.usda`` as its root layer."""
+    objects: list[ObjectFit] = field(default_factory=list)
+    """One entry per object node."""
+    floor_z: float = 0.0
+    """Estimated floor height, metres."""
+    background_faces: int = 0
+    """Faces of the background mesh."""
+    used_depth: str = "none"
+    """'metric', 'relative' or 'none'."""
+    wall_time_s: float = 0.0
+    """Wall-clock time of the stage, seconds."""
+    timings: dict[str, float] = field(default_factory=dict)
+    """Seconds per phase."""
+    peak_memory_mb: float = 0.0
+    """Peak resident memory of the process so far, MiB."""
+    final_losses: dict[str, float] = field(default_factory=dict)
+    """Loss terms of the last refinement step."""
+
+
+# --------------------------------------------------------------------------------------------- frame loading
+@dataclass(kw_only=True)
+class _Frames:
+    index: np.ndarray  # [N] frame indices in the observations
+    views: Views  # labels already remapped? no: raw instance ids
+    rgb: np.ndarray  # [N, H, W, 3] uint8
+    normals: np.ndarray | None  # [N, H, W, 3] float32 camera frame
+    depth_raw: np.ndarray | None  # [N, H, W] float32 as given (metric or relative)
+
+
+def _pick(n: int, count: int) -> np.ndarray:
+    if n <= count:
+        return np.arange(n)
+    return np.unique(np.linspace(0, n - 1, count).round().astype(int))
+
+
+def _load_frames(obs: Observations, count: int, use_depth: bool, use_normals: bool) -> _Frames:
+    idx = _pick(len(obs), count)
+    labels = np.empty((len(idx), obs.height, obs.width), np.int32)
+    rgb = np.empty((len(idx), obs.height, obs.width, 3), np.uint8)
+    depth = np.empty((len(idx), obs.height, obs.width), np.float32) if use_depth else None
+    normals = np.empty((len(idx), obs.height, obs.width, 3), np.float32) if use_normals else None
+    for j, i in enumerate(idx):
+        mask = obs.mask(int(i))
+        if mask is None or mask.shape != (obs.height, obs.width):
+            raise HolousdError(
+                f"{obs.source(int(i), 'mask')}: instance mask missing or of the wrong size for frame {i}; "
+                f"give a {obs.width}x{obs.height} integer mask per frame"
+            )
+        labels[j] = mask
+        img = obs.rgb(int(i))
+        rgb[j] = img[..., :3]
+        if depth is not None:
+            d = obs.depth(int(i))
+            depth[j] = np.where(np.isfinite(d), d, 0.0)
+        if normals is not None:
+            normals[j] = obs.normal(int(i))
+    metric = depth if (use_depth and obs.depth_kind == "metric") else None
+    views = Views(intrinsics=obs.intrinsics[idx], poses=obs.poses[idx], labels=labels, depth=metric)
+    return _Frames(index=idx, views=views, rgb=rgb, normals=normals, depth_raw=depth)
+
+
+def _backproject(views: Views, i: int, select: np.ndarray, stride: int = 1) -> np.ndarray:
+    """[P, 3] world points of the selected pixels of frame ``i`` (needs metric depth)."""
+    assert views.depth is not None
+    rows, cols = np.nonzero(select)
+    if stride > 1:
+        rows, cols = rows[::stride], cols[::stride]
+    d = views.depth[i][rows, cols]
+    k = views.intrinsics[i]
+    cam = np.stack([(cols - k[0, 2]) / k[0, 0] * d, (rows - k[1, 2]) / k[1, 1] * d, d], axis=1)
+    pose = views.poses[i]
+    return cam @ pose[:3, :3].T + pose[:3, 3]
+
+
+# --------------------------------------------------------------------------------------------- background
+def _floor_from_points(points: np.ndarray) -> float:
+    z = points[:, 2]
+    low = np.percentile(z, 2.0)
+    near = z[np.abs(z - low) < 0.03]
+    return float(np.median(near)) if len(near) else float(low)
+
+
+def _background_metric(frames: _Frames, fusion: np.ndarray, config: FitConfig) -> tuple[float, MeshData | None]:
+    views = frames.views
+    pts = [_backproject(views, int(i), (views.labels[i] == 0) & (views.depth[i] > 0), stride=7) for i in fusion]  # type: ignore[index]
+    cloud = np.concatenate(pts) if pts else np.zeros((0, 3))
+    if len(cloud) < 50:
+        return 0.0, None
+    floor = _floor_from_points(cloud)
+    lo, hi = np.percentile(cloud, 0.5, axis=0), np.percentile(cloud, 99.5, axis=0)
+    voxel = config.background_voxel
+    grid = VoxelGrid.from_bounds(lo, hi, voxel, pad=2)
+    while grid.size > 2_000_000:
+        voxel *= 1.25
+        grid = VoxelGrid.from_bounds(lo, hi, voxel, pad=2)
+    fused = fuse_tsdf(grid.points(), views, 0, 2.0 * voxel, frames=fusion)
+    sdf = np.where(fused.weight > 0, fused.tsdf, 2.0 * voxel).reshape(grid.shape)
+    meshed = mesh_from_sdf(sdf, grid.origin, grid.voxel_size, max_faces=config.background_faces)
+    return floor, (meshed.mesh if meshed is not None else None)
+
+
+def _floor_slab(floor: float, lo: np.ndarray, hi: np.ndarray, thickness: float = 0.1) -> MeshData:
+    import trimesh
+
+    extents = np.array([hi[0] - lo[0], hi[1] - lo[1], thickness])
+    box = trimesh.creation.box(extents=extents)
+    box.apply_translation([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, floor - thickness / 2])
+    return MeshData(points=np.asarray(box.vertices), faces=np.asarray(box.faces))
+
+
+# --------------------------------------------------------------------------------------------- instance extents
+@dataclass(kw_only=True)
+class _Instance:
+    name: str
+    instance_id: int
+    lo: np.ndarray
+    hi: np.ndarray
+    footprint: float
+    pixels: int
+    grid: VoxelGrid | None = None
+    sdf: np.ndarray | None = None  # [X, Y, Z]
+    color: np.ndarray = field(default_factory=lambda: np.full(3, 0.5))
+
+
+def _extents_metric(frames: _Frames, fusion: np.ndarray, ids: list[int]) -> dict[int, tuple]:
+    views = frames.views
+    clouds: dict[int, list[np.ndarray]] = {k: [] for k in ids}
+    depths: dict[int, list[np.ndarray]] = {k: [] for k in ids}
+    for i in fusion:
+        lab = views.labels[i]
+        valid = views.depth[i] > 0  # type: ignore[index]
+        for k in np.unique(lab):
+            if k == 0 or k not in clouds:
+                continue
+            sel = (lab == k) & valid
+            count = int(sel.sum())
+            if count == 0:
+                continue
+            stride = max(1, count // 4000)
+            clouds[int(k)].append(_backproject(views, int(i), sel, stride))
+            depths[int(k)].append(views.depth[i][sel][::stride])  # type: ignore[index]
+    out = {}
+    for k in ids:
+        if not clouds[k]:
+            continue
+        cloud = np.concatenate(clouds[k])
+        lo, hi = np.percentile(cloud, 0.2, axis=0), np.percentile(cloud, 99.8, axis=0)
+        out[k] = (lo, hi, float(np.median(np.concatenate(depths[k]))))
+    return out
+
+
+def _scene_bound_without_depth(views: Views, reach: float) -> tuple[np.ndarray, np.ndarray]:
+    centres = views.poses[:, :3, 3]
+    forward = views.poses[:, :3, 2]
+    ahead = centres + reach * forward
+    lo = np.minimum(centres.min(0), ahead.min(0)) - 0.25
+    hi = np.maximum(centres.max(0), ahead.max(0)) + 0.25
+    lo[2] = min(lo[2], centres[:, 2].min() - reach)
+    return lo, hi
+
+
+def _extents_hull(frames: _Frames, fusion: np.ndarray, ids: list[int], config: FitConfig) -> dict[int, tuple]:
+    views = frames.views
+    lo, hi = _scene_bound_without_depth(views, config.scene_reach)
+    voxel = config.hull_voxel
+    grid = VoxelGrid.from_bounds(lo, hi, voxel, pad=1)
+    while grid.size > 1_500_000:
+        voxel *= 1.2
+        grid = VoxelGrid.from_bounds(lo, hi, voxel, pad=1)
+    pts = grid.points()
+    # frames that see no object at all still carve; a voxel projecting on background in any frame is no object's
+    seen = np.zeros(len(pts), np.int32)
+    bg = np.zeros(len(pts), np.int32)
+    hits = {k: np.zeros(len(pts), np.int32) for k in ids}
+    for i in fusion:
+        row, col, z, valid = views.project(int(i), pts)
+        lab = views.labels[i][row, col]
+        seen += valid
+        bg += valid & (lab == 0)
+        for k in np.unique(lab[valid]):
+            if int(k) in hits:
+                hits[int(k)] += valid & (lab == k)
+    out = {}
+    free = bg > config.hull_tolerance * np.maximum(seen, 1)
+    from scipy.ndimage import label as connected
+
+    for k in ids:
+        kept = (hits[k] > 0) & ~free & (seen >= 3)
+        if not kept.any():
+            kept = (hits[k] > 0) & ~free
+        if not kept.any():
+            continue
+        # stray voxels seen by few frames survive carving: keep the component the instance's hits support most
+        comps, count = connected(kept.reshape(grid.shape))
+        if count > 1:
+            support = np.bincount(comps.reshape(-1), weights=hits[k], minlength=count + 1)
+            support[0] = 0
+            kept = comps.reshape(-1) == int(np.argmax(support))
+        p = pts[kept]
+        out[k] = (p.min(0) - voxel, p.max(0) + voxel, None)
+    return out
+
+
+def _voxel_size(extent: np.ndarray, footprint: float, config: FitConfig) -> float:
+    voxel = max(float(extent.max()) / config.target_resolution, config.min_voxel, config.footprint_factor * footprint)
+    while np.prod(np.ceil(extent / voxel) + 1 + 4) > config.max_voxels:
+        voxel *= 1.1
+    return voxel
+
+
+# --------------------------------------------------------------------------------------------- initialisation
+def _init_metric(inst: _Instance, views: Views, fusion: np.ndarray, floor: float | None, config: FitConfig) -> None:
+    assert inst.grid is not None
+    fine = inst.grid
+    trunc = config.trunc_voxels * fine.voxel_size
+    frames = [int(i) for i in fusion if (views.labels[i] == inst.instance_id).any()] or [int(i) for i in fusion]
+    coarse = VoxelGrid(origin=fine.origin, voxel_size=2 * fine.voxel_size,
+                       shape=tuple(int(np.ceil((n - 1) / 2)) + 1 for n in fine.shape))  # type: ignore[arg-type]  # fmt: skip
+    c_trunc = max(trunc, config.trunc_voxels * coarse.voxel_size)
+    coarse_sdf = fuse_tsdf(coarse.points(), views, inst.instance_id, c_trunc, frames).solid_sdf(c_trunc)
+    pts = fine.points()
+    sdf = sample_grid(coarse_sdf.reshape(coarse.shape), coarse, pts, outside=c_trunc)
+    sdf = np.clip(sdf, -trunc, trunc)
+    band = np.abs(sdf) < 1.5 * coarse.voxel_size + trunc * 0.5
+    if band.any():
+        sdf[band] = fuse_tsdf(pts[band], views, inst.instance_id, trunc, frames).solid_sdf(trunc)
+    margin = config.extent_margin * fine.voxel_size
+    sdf = np.maximum(sdf, box_sdf(pts, inst.lo - margin, inst.hi + margin))
+    if floor is not None:
+        sdf = np.maximum(sdf, (floor - pts[:, 2]).astype(np.float32))
+    inst.sdf = sdf.reshape(fine.shape).astype(np.float32)
+
+
+def _init_hull(inst: _Instance, views: Views, fusion: np.ndarray, floor: float | None, config: FitConfig) -> None:
+    assert inst.grid is not None
+    fine = inst.grid
+    trunc = config.trunc_voxels * fine.voxel_size
+    coarse = VoxelGrid(origin=fine.origin, voxel_size=2 * fine.voxel_size,
+                       shape=tuple(int(np.ceil((n - 1) / 2)) + 1 for n in fine.shape))  # type: ignore[arg-type]  # fmt: skip
+    kept_c, _ = carve_hull(coarse.points(), views, inst.instance_id, fusion, config.hull_tolerance)
+    pts = fine.points()
+    occ_c = sample_grid(kept_c.reshape(coarse.shape).astype(np.float32), coarse, pts, outside=0.0)
+    occ = occ_c > 0.5
+    band = (occ_c > 0.02) & (occ_c < 0.98)
+    if band.any():
+        kept_f, _ = carve_hull(pts[band], views, inst.instance_id, fusion, config.hull_tolerance)
+        occ[band] = kept_f
+    if floor is not None:
+        occ &= pts[:, 2] >= floor
+    sdf = signed_distance_from_occupancy(occ.reshape(fine.shape), fine.voxel_size)
+    inst.sdf = np.clip(sdf, -trunc, trunc)
+
+
+def _resolve_overlaps(instances: list[_Instance]) -> None:
+    """Split space claimed by two instances at their mid-surface: s_a <- max(s_a, (s_a - s_b) / 2)."""
+    updates: dict[int, np.ndarray] = {}
+    for a, ia in enumerate(instances):
+        if ia.sdf is None or ia.grid is None:
+            continue
+        ga = ia.grid
+        lo_a, hi_a = ga.origin, ga.upper
+        new = ia.sdf.copy()
+        pts = None
+        for b, ib in enumerate(instances):
+            if b == a or ib.sdf is None or ib.grid is None:
+                continue
+            lo_b, hi_b = ib.grid.origin, ib.grid.upper
+            if np.any(np.maximum(lo_a, lo_b) > np.minimum(hi_a, hi_b)):
+                continue
+            if pts is None:
+                pts = ga.points()
+            flat = ia.sdf.reshape(-1)
+            near = flat < ga.voxel_size  # only where a is inside or at its surface
+            inbox = near & np.all((pts >= lo_b) & (pts <= hi_b), axis=1)
+            if not inbox.any():
+                continue
+            sb = sample_grid(ib.sdf, ib.grid, pts[inbox], outside=1.0)
+            sa = flat[inbox]
+            cand = np.maximum(sa, 0.5 * (sa - sb))
+            view = new.reshape(-1)
+            view[inbox] = np.maximum(view[inbox], cand)
+        updates[a] = new
+    for a, grid in updates.items():
+        instances[a].sdf = grid
+
+
+# --------------------------------------------------------------------------------------------- refinement
+class _RaySampler:
+    """Instance-balanced pixel sampling over the frames kept in memory."""
+
+    def __init__(self, frames: _Frames, index_of: dict[int, int], rng: np.random.Generator) -> None:
+        self.frames = frames
+        self.rng = rng
+        n, h, w = frames.views.labels.shape
+        lut = np.zeros(max(max(index_of, default=0), int(frames.views.labels.max())) + 1, np.int64)
+        for inst_id, k in index_of.items():
+            lut[inst_id] = k + 1
+        self.labels = lut[frames.views.labels].reshape(n, -1)  # [N, H*W] 0 = background, k + 1 = instance k
+        self.groups: list[list[np.ndarray]] = []
+        for i in range(n):
+            lab = self.labels[i]
+            order = np.argsort(lab, kind="stable")
+            ids, starts = np.unique(lab[order], return_index=True)
+            ends = np.append(starts[1:], len(order))
+            self.groups.append([order[s:e] for k, s, e in zip(ids, starts, ends, strict=True) if k > 0])
+
+    def sample(self, frames_per_step: int, rays: int, balanced: float) -> tuple[np.ndarray, np.ndarray]:
+        """(frame [R] int, pixel [R] int flat index) for one step."""
+        n = self.labels.shape[0]
+        pick = self.rng.choice(n, size=min(frames_per_step, n), replace=False)
+        per = max(1, rays // len(pick))
+        f_out, p_out = [], []
+        hw = self.labels.shape[1]
+        for i in pick:
+            groups = self.groups[i]
+            n_bal = int(per * balanced) if groups else 0
+            uniform = self.rng.integers(0, hw, size=per - n_bal)
+            parts = [uniform]
+            if n_bal:
+                each = max(1, n_bal // len(groups))
+                parts += [g[self.rng.integers(0, len(g), size=each)] for g in groups]
+            pix = np.concatenate(parts)
+            p_out.append(pix)
+            f_out.append(np.full(len(pix), i))
+        return np.concatenate(f_out), np.concatenate(p_out)
+
+
+def _refine(instances: list[_Instance], frames: _Frames, relative: bool, config: FitConfig,
+            progress: object | None) -> dict[str, float]:  # fmt: skip
+    import torch
+
+    active = [inst for inst in instances if inst.sdf is not None and inst.grid is not None]
+    if not active or config.iterations <= 0:
+        return {}
+    previous = torch.get_num_threads()
+    if config.threads is not None:
+        torch.set_num_threads(config.threads)
+    try:
+        return _refine_steps(active, frames, relative, config, progress)
+    finally:
+        torch.set_num_threads(previous)
+
+
+def _refine_steps(active: list[_Instance], frames: _Frames, relative: bool, config: FitConfig,
+                  progress: object | None) -> dict[str, float]:  # fmt: skip
+    import torch
+
+    from holousd.render._volume import RayBatch, SdfGridSet, render_rays
+
+    device = torch.device(config.device)
+    gen = torch.Generator(device=device).manual_seed(config.seed)
+    rng = np.random.default_rng(config.seed)
+    grids = SdfGridSet(
+        [inst.sdf for inst in active],  # type: ignore[misc]
+        np.stack([inst.grid.origin for inst in active]),  # type: ignore[union-attr]
+        np.array([inst.grid.voxel_size for inst in active]),  # type: ignore[union-attr]
+        colors=np.stack([inst.color for inst in active]),
+        device=config.device,
+    )
+    index_of = {inst.instance_id: k for k, inst in enumerate(active)}
+    sampler = _RaySampler(frames, index_of, rng)
+    groups = [{"params": [grids.sdf[k]], "lr": config.sdf_lr * float(grids.voxel[k])} for k in range(grids.count)]
+    groups.append({"params": grids.color, "lr": config.color_lr})
+    opt = torch.optim.Adam(groups, betas=(0.9, 0.99))
+    w = config.weights
+    views = frames.views
+    n, h, width = views.labels.shape
+    rgb_all = frames.rgb.reshape(n, -1, 3)
+    depth_all = frames.depth_raw.reshape(n, -1) if frames.depth_raw is not None else None
+    normal_all = frames.normals.reshape(n, -1, 3) if frames.normals is not None else None
+    pairs = []
+    for a in range(grids.count):
+        for b in range(a + 1, grids.count):
+            lo = torch.maximum(grids.lo[a], grids.lo[b])
+            hi = torch.minimum(grids.hi[a], grids.hi[b])
+            if bool((hi > lo).all()):
+                pairs.append((a, b, lo, hi))
+    use_normals = normal_all is not None and w.normal > 0
+    losses: dict[str, float] = {}
+    for _step in range(config.iterations):
+        f_idx, p_idx = sampler.sample(config.frames_per_step, config.rays, config.balanced_fraction)
+        rows, cols = p_idx // width, p_idx % width
+        k = views.intrinsics[f_idx]  # [R, 3, 3]
+        dirs_cam = np.stack([(cols - k[:, 0, 2]) / k[:, 0, 0], (rows - k[:, 1, 2]) / k[:, 1, 1], np.ones(len(cols))], 1)
+        rot = views.poses[f_idx, :3, :3]  # [R, 3, 3]
+        dirs = np.einsum("rij,rj->ri", rot, dirs_cam)  # [R, 3]
+        rays = RayBatch(
+            origins=torch.tensor(views.poses[f_idx, :3, 3], dtype=torch.float32, device=device),
+            dirs=torch.tensor(dirs, dtype=torch.float32, device=device),
+            labels=torch.tensor(sampler.labels[f_idx, p_idx], dtype=torch.long, device=device),
+        )
+        grids.begin(with_gradients=True)
+        out = render_rays(grids, rays, config.volume, gen)
+        target_rgb = torch.tensor(rgb_all[f_idx, p_idx] / 255.0, dtype=torch.float32, device=device)  # [R, 3]
+        pred_rgb = out.color + (1.0 - out.opacity)[:, None] * target_rgb
+        terms: dict[str, torch.Tensor] = {}
+        terms["rgb"] = ((pred_rgb - target_rgb) ** 2).mean()
+        terms["mask"] = torch.nn.functional.nll_loss(torch.log(out.probs), rays.labels)
+        obj = rays.labels > 0
+        if depth_all is not None and w.depth > 0:
+            d = torch.tensor(depth_all[f_idx, p_idx], dtype=torch.float32, device=device)
+            valid = obj & (d > 0)
+            if valid.any():
+                pred = out.depth[valid]
+                target = d[valid]
+                if relative:
+                    target = _align_scale_shift(target, pred.detach(), torch.tensor(f_idx, device=device)[valid])
+                terms["depth"] = (pred - target).abs().mean()
+        if use_normals and out.normal is not None:
+            nrm = torch.tensor(normal_all[f_idx, p_idx], dtype=torch.float32, device=device)  # type: ignore[index]
+            valid = obj & (nrm.norm(dim=-1) > 0.5)
+            if valid.any():
+                rot_t = torch.tensor(rot, dtype=torch.float32, device=device)[valid]
+                pred_cam = torch.einsum("rji,rj->ri", rot_t, out.normal[valid])
+                pred_cam = pred_cam / pred_cam.norm(dim=-1, keepdim=True).clamp(min=1e-6)
+                terms["normal"] = (pred_cam - nrm[valid]).abs().sum(-1).mean() + (
+                    1.0 - (pred_cam * nrm[valid]).sum(-1)
+                ).mean()
+        eik, smooth = _regularisers(grids, rng, device)
+        terms["eikonal"] = eik
+        terms["smooth"] = smooth
+        if pairs and w.overlap > 0:
+            pen = []
+            for a, b, lo, hi in pairs:
+                u = torch.rand(config.overlap_points, 3, generator=gen, device=device)
+                p = lo + (hi - lo) * u
+                pen.append(torch.relu(-(grids.sdf_only(a, p) + grids.sdf_only(b, p))).mean())
+            terms["overlap"] = torch.stack(pen).mean()
+        loss = sum(getattr(w, name) * value for name, value in terms.items())
+        opt.zero_grad(set_to_none=True)
+        loss.backward()  # type: ignore[union-attr]
+        opt.step()
+        grids.end()
+        losses = {name: float(value.detach()) for name, value in terms.items()}
+        if progress is not None:
+            progress.update(1)  # type: ignore[attr-defined]
+            progress.set_postfix(loss=f"{float(loss):.4f}")  # type: ignore[attr-defined]
+    for k, inst in enumerate(active):
+        inst.sdf = grids.sdf[k].detach().cpu().numpy()[0, 0].astype(np.float32)
+        inst.color = torch.sigmoid(grids.color[k].detach()).mean(dim=(2, 3, 4))[0].cpu().numpy()
+    return losses
+
+
+def _align_scale_shift(target: torch.Tensor, pred: torch.Tensor, frame: torch.Tensor) -> torch.Tensor:
+    """Per frame, the least-squares a * target + b closest to ``pred`` (scale-and-shift invariant depth)."""
+    import torch
+
+    out = torch.empty_like(target)
+    for f in torch.unique(frame):
+        sel = frame == f
+        x, y = target[sel], pred[sel]
+        if x.numel() < 8:
+            out[sel] = y
+            continue
+        a_mat = torch.stack([x, torch.ones_like(x)], 1)  # [M, 2]
+        sol = torch.linalg.lstsq(a_mat, y[:, None]).solution[:, 0]
+        out[sel] = sol[0] * x + sol[1]
+    return out
+
+
+def _regularisers(grids: object, rng: np.random.Generator, device: torch.device,
+                  samples: int = 4096) -> tuple[torch.Tensor, torch.Tensor]:  # fmt: skip
+    """Eikonal and smoothness terms on random voxels near each instance's surface."""
+    import torch
+
+    eik, smooth = [], []
+    for k in range(grids.count):  # type: ignore[attr-defined]
+        g = grids.sdf[k][0, 0]  # type: ignore[attr-defined]
+        h = float(grids.voxel[k])  # type: ignore[attr-defined]
+        grad = grids._cache[k][0, 1:4]  # type: ignore[attr-defined]  # [3, X, Y, Z]
+        with torch.no_grad():
+            band = (g.abs() < 2.5 * h).reshape(-1).nonzero().squeeze(1)
+        if band.numel() == 0:
+            continue
+        pick = band[torch.as_tensor(rng.integers(0, band.numel(), size=min(samples, band.numel())), device=device)]
+        norm = grad.reshape(3, -1)[:, pick].norm(dim=0)
+        eik.append(((norm - 1.0) ** 2).mean())
+        if min(g.shape) >= 3:
+            lap = (
+                g[2:, 1:-1, 1:-1] + g[:-2, 1:-1, 1:-1] + g[1:-1, 2:, 1:-1] + g[1:-1, :-2, 1:-1]
+                + g[1:-1, 1:-1, 2:] + g[1:-1, 1:-1, :-2] - 6 * g[1:-1, 1:-1, 1:-1]
+            )  # fmt: skip
+            with torch.no_grad():
+                inner = (g[1:-1, 1:-1, 1:-1].abs() < 2.5 * h).reshape(-1).nonzero().squeeze(1)
+            if inner.numel():
+                sel = inner[torch.as_tensor(rng.integers(0, inner.numel(), size=min(samples, inner.numel())))]
+                smooth.append(((lap.reshape(-1)[sel] / h) ** 2).mean() * h)
+    zero = torch.zeros((), device=device)
+    return (torch.stack(eik).mean() if eik else zero), (torch.stack(smooth).mean() if smooth else zero)
+
+
+# --------------------------------------------------------------------------------------------- stage
+def _redistance(sdf: np.ndarray, voxel: float, band: float) -> np.ndarray:
+    """Keep the fitted values near the surface and Euclidean distances (from the occupancy) beyond."""
+    edt = signed_distance_from_occupancy(sdf < 0, voxel)
+    return np.where(np.abs(sdf) < band, sdf, edt).astype(np.float32)
+
+
+def _peak_memory_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def fit(scene: SceneGraph, obs: Observations, config: FitConfig | None = None,
+        out_dir: str | os.PathLike[str] | None = None) -> FitResult:  # fmt: skip
+    """Fit every instance's SDF and mesh and write them as the layer ``10_fit.usda`` over ``scene``.
+
+    Args:
+        scene: The scene after s0_observe (its object nodes carry the instance ids).
+        obs: The capture s0_observe read (instance masks required; depth and normals used when present).
+        config: Settings (default :data:`DEFAULT`).
+        out_dir: Folder of the new layer (default: the folder of the scene's root layer).
+
+    Returns:
+        The result, with ``result.scene`` showing ``10_fit.usda`` as its root layer.
+    """
+    config = config or DEFAULT
+    start = time.perf_counter()
+    timings: dict[str, float] = {}
+    if not obs.has_masks:
+        raise HolousdError(
+            f"{obs.root or '<observations>'}: no instance masks; fitting needs one integer mask per frame "
+            "(0 = background, 1..N objects): add masks/ to a native capture or instance_mask/ to a nerfstudio one"
+        )
+    if out_dir is None:
+        if scene.path is None:
+            raise HolousdError("the scene is in memory; pass out_dir or create it with a path (s0_observe does)")
+        out_dir = scene.path.parent
+    out_dir = Path(out_dir)
+    nodes = [info for info in scene.nodes() if info.role == "object"]
+    if not nodes:
+        raise HolousdError(f"{scene.path}: no object nodes; run s0_observe on a capture whose masks label objects")
+    ids = [info.instance_id for info in nodes]
+    use_depth = obs.has_depth
+    relative = use_depth and obs.depth_kind == "relative"
+    metric = use_depth and obs.depth_kind == "metric"
+    frames = _load_frames(obs, max(config.render_frames, config.fusion_frames), use_depth, obs.has_normals)
+    views = frames.views
+    fusion = _pick(len(views), config.fusion_frames)
+    timings["load"] = time.perf_counter() - start
+
+    t0 = time.perf_counter()
+    floor: float | None = None
+    background: MeshData | None = None
+    if metric:
+        floor, background = _background_metric(frames, fusion, config)
+        extents = _extents_metric(frames, fusion, ids)
+    else:
+        extents = _extents_hull(frames, fusion, ids, config)
+    timings["extents"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    instances: list[_Instance] = []
+    f_mean = float(np.mean(views.intrinsics[:, [0, 1], [0, 1]]))
+    for info in nodes:
+        k = info.instance_id
+        pixels = int(sum(int((views.labels[i] == k).sum()) for i in range(len(views))))
+        if k not in extents:
+            instances.append(_Instance(name=info.name, instance_id=k, lo=np.zeros(3), hi=np.zeros(3), footprint=0.0,
+                                       pixels=pixels))  # fmt: skip
+            continue
+        lo, hi, med_depth = extents[k]
+        if med_depth is None:
+            cams = views.poses[:, :3, 3]
+            med_depth = float(np.median(np.linalg.norm(cams - (lo + hi) / 2, axis=1)))
+        footprint = med_depth / f_mean
+        inst = _Instance(name=info.name, instance_id=k, lo=lo, hi=hi, footprint=footprint, pixels=pixels)
+        voxel = _voxel_size(np.maximum(hi - lo, 1e-3), footprint, config)
+        inst.grid = VoxelGrid.from_bounds(lo, hi, voxel, pad=2 + int(np.ceil(config.extent_margin)))
+        colours = [frames.rgb[i][views.labels[i] == k] for i in fusion]
+        colours = [c for c in colours if len(c)]
+        if colours:
+            inst.color = np.concatenate(colours).mean(0) / 255.0
+        instances.append(inst)
+    if not metric:
+        lows = [inst.lo[2] for inst in instances if inst.grid is not None]
+        floor = None  # the hull bottoms are no reliable floor: keep their own extent
+        floor_estimate = float(min(lows)) if lows else 0.0
+    else:
+        floor_estimate = float(floor) if floor is not None else 0.0
+
+    bar = None
+    if config.progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(instances) + config.iterations + len(instances), desc="s1_fit", file=sys.stderr,
+                   unit="step", leave=False)  # fmt: skip
+    for inst in instances:
+        if inst.grid is not None:
+            if metric:
+                _init_metric(inst, views, fusion, floor, config)
+            else:
+                _init_hull(inst, views, fusion, floor, config)
+        if bar is not None:
+            bar.update(1)
+            bar.set_postfix(object=inst.name)
+    if config.resolve_overlaps:
+        _resolve_overlaps(instances)
+    timings["init"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    losses = _refine(instances, frames, relative, config, bar)
+    timings["refine"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    if config.resolve_overlaps and config.iterations > 0:
+        _resolve_overlaps(instances)
+    scene.push_layer(out_dir / FIT_LAYER, provenance="s1_fit", replace=True)
+    results: list[ObjectFit] = []
+    for inst in instances:
+        fit_info = ObjectFit(name=inst.name, instance_id=inst.instance_id, pixels=inst.pixels,
+                             voxel_size=inst.grid.voxel_size if inst.grid else 0.0,
+                             resolution=inst.grid.shape if inst.grid else (0, 0, 0))  # fmt: skip
+        meshed = None
+        if inst.grid is not None and inst.sdf is not None:
+            trunc = config.trunc_voxels * inst.grid.voxel_size
+            inst.sdf = _redistance(inst.sdf, inst.grid.voxel_size, trunc)
+            extent = float((inst.hi - inst.lo).max())
+            meshed = mesh_from_sdf(inst.sdf, inst.grid.origin, inst.grid.voxel_size,
+                                   max_faces=face_budget(extent, config.faces_per_m2))  # fmt: skip
+        if meshed is None:
+            meshed_mesh = _fallback_mesh(inst, frames, fusion, metric)
+            fallback = "box"
+        else:
+            meshed_mesh, fallback = meshed.mesh, meshed.fallback
+        if meshed_mesh is not None:
+            lo, hi = meshed_mesh.bounds
+            origin = np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, lo[2]])
+            scene.set_pose(inst.name, Pose(translation=origin))
+            scene.set_mesh(inst.name, MeshData(points=meshed_mesh.points - origin, faces=meshed_mesh.faces))
+            if inst.grid is not None and inst.sdf is not None:
+                scene.set_sdf(inst.name, SdfField(grid=inst.sdf, origin=inst.grid.origin - origin,
+                                                  voxel_size=inst.grid.voxel_size))  # fmt: skip
+            fit_info.faces = len(meshed_mesh.faces)
+            fit_info.watertight = _is_watertight(meshed_mesh)
+            fit_info.fallback = fallback
+            fit_info.bounds_world = np.stack([lo, hi])
+        results.append(fit_info)
+        if bar is not None:
+            bar.update(1)
+    if background is None:
+        boxes = [r.bounds_world for r in results if r.bounds_world is not None]
+        cams = views.poses[:, :3, 3]
+        pts = np.concatenate([np.concatenate(boxes), cams]) if boxes else cams
+        margin = 0.5
+        background = _floor_slab(floor_estimate, pts.min(0) - margin, pts.max(0) + margin)
+    scene.set_mesh(BACKGROUND, background)
+    scene.save()
+    if bar is not None:
+        bar.close()
+    timings["mesh"] = time.perf_counter() - t0
+    return FitResult(
+        scene=scene,
+        objects=results,
+        floor_z=floor_estimate,
+        background_faces=len(background.faces),
+        used_depth=obs.depth_kind or "none",
+        wall_time_s=time.perf_counter() - start,
+        timings=timings,
+        peak_memory_mb=_peak_memory_mb(),
+        final_losses=losses,
+    )
+
+
+def _is_watertight(mesh: MeshData) -> bool:
+    import trimesh
+
+    return bool(trimesh.Trimesh(vertices=mesh.points, faces=mesh.faces, process=False).is_watertight)
+
+
+def _fallback_mesh(inst: _Instance, frames: _Frames, fusion: np.ndarray, metric: bool) -> MeshData | None:
+    """A box over the observed extent when no surface could be fitted, so that no object is lost."""
+    import trimesh
+
+    if inst.grid is None:
+        return None
+    size = np.maximum(inst.hi - inst.lo, 0.01)
+    box = trimesh.creation.box(extents=size)
+    box.apply_translation((inst.lo + inst.hi) / 2)
+    return MeshData(points=np.asarray(box.vertices), faces=np.asarray(box.faces))
+
+
+def run(scene: SceneGraph, obs: Observations, config: FitConfig | None = None) -> SceneGraph:
+    """Stage transform s1_fit (geometry): push ``10_fit.usda`` beside the scene's root layer (see :func:`fit`)."""
+    return fit(scene, obs, config).scene
+
+
+def with_seed(config: FitConfig, seed: int, progress: bool | None = None) -> FitConfig:
+    """A copy of ``config`` with another seed (and progress setting)."""
+    return replace(config, seed=seed, progress=config.progress if progress is None else progress)
