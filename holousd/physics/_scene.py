@@ -15,6 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 from pxr import Gf, Sdf, Tf, Usd, UsdGeom, UsdPhysics, UsdShade
 
+from holousd.usd import read_mesh
+
 from ._errors import PhysicsInputError
 
 __all__ = [
@@ -284,18 +286,8 @@ def world_mesh(stage: Usd.Stage, path: str, *, colliders: bool = False) -> tuple
 
 def mesh_arrays(mesh: UsdGeom.Mesh) -> tuple[np.ndarray, np.ndarray]:
     """``(points [N, 3] float64, faces [F, 3] int64)`` of a UsdGeom.Mesh in its own coordinates (fan-triangulated)."""
-    pts = np.asarray(mesh.GetPointsAttr().Get() or [], dtype=np.float64).reshape(-1, 3)
-    counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get() or [], dtype=np.int64)
-    idx = np.asarray(mesh.GetFaceVertexIndicesAttr().Get() or [], dtype=np.int64)
-    if len(counts) and np.all(counts == 3):
-        return pts, idx.reshape(-1, 3)
-    tris = []
-    start = 0
-    for n in counts:
-        poly = idx[start : start + n]
-        tris.extend((poly[0], poly[k], poly[k + 1]) for k in range(1, n - 1))
-        start += n
-    return pts, np.asarray(tris, dtype=np.int64).reshape(-1, 3)
+    data = read_mesh(mesh.GetPrim())
+    return data.points, data.faces
 
 
 def working_stage(stage: Usd.Stage) -> Usd.Stage:

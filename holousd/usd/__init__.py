@@ -8,6 +8,7 @@ from holousd.usd._scene import (
     NodeSummary,
     SceneGraph,
     SceneSummary,
+    read_mesh,
 )
 from holousd.usd._types import (
     CameraData,
@@ -44,6 +45,7 @@ __all__ = [
     "export_usdz",
     "new_layer_over",
     "plugin_resources_dir",
+    "read_mesh",
     "register",
     "save_layer",
     "validate",

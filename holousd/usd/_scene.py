@@ -53,6 +53,7 @@ __all__ = [
     "NodeSummary",
     "SceneGraph",
     "SceneSummary",
+    "read_mesh",
     "schema_version_of",
 ]
 
@@ -164,6 +165,30 @@ def _triangulate(counts: np.ndarray, indices: np.ndarray, where: str) -> np.ndar
         tris.extend((face[0], face[i], face[i + 1]) for i in range(1, count - 1))
         start += count
     return np.asarray(tris, dtype=np.int64)
+
+
+def read_mesh(prim: Usd.Prim, *, where: str | None = None) -> MeshData:
+    """Read a UsdGeom.Mesh prim as a triangle mesh in its own coordinates (polygons fan-triangulated).
+
+    Args:
+        prim: A UsdGeom.Mesh prim (any USD scene, not only holousd's).
+        where: What to name in error messages (default: the prim path).
+
+    Raises:
+        SceneError: points or faces are missing or inconsistent.
+    """
+    where = where or str(prim.GetPath())
+    geom = UsdGeom.Mesh(prim)
+    points = geom.GetPointsAttr().Get()
+    counts = geom.GetFaceVertexCountsAttr().Get()
+    indices = geom.GetFaceVertexIndicesAttr().Get()
+    if points is None or counts is None or indices is None:
+        raise SceneError(f"{where}: mesh has no points or faces authored; author points, faceVertexCounts/Indices")
+    faces = _triangulate(np.asarray(counts, dtype=np.int64), np.asarray(indices, dtype=np.int64), where)
+    try:
+        return MeshData(points=np.asarray(points, dtype=np.float64), faces=faces)
+    except InvalidDataError as exc:
+        raise SceneError(f"{where}: {exc}") from exc
 
 
 class SceneGraph:
@@ -497,18 +522,7 @@ class SceneGraph:
         return geom
 
     def _read_mesh(self, prim: Usd.Prim) -> MeshData:
-        geom = UsdGeom.Mesh(prim)
-        points = geom.GetPointsAttr().Get()
-        counts = geom.GetFaceVertexCountsAttr().Get()
-        indices = geom.GetFaceVertexIndicesAttr().Get()
-        where = f"{self._where()}:{prim.GetPath()}"
-        if points is None or counts is None or indices is None:
-            raise SceneError(f"{where}: mesh has no points or faces authored; write it with set_mesh()")
-        faces = _triangulate(np.asarray(counts, dtype=np.int64), np.asarray(indices, dtype=np.int64), where)
-        try:
-            return MeshData(points=np.asarray(points, dtype=np.float64), faces=faces)
-        except InvalidDataError as exc:
-            raise SceneError(f"{where}: {exc}") from exc
+        return read_mesh(prim, where=f"{self._where()}:{prim.GetPath()}")
 
     def set_mesh(self, name: str, mesh: MeshData) -> None:
         """Write a node's mesh (object coordinates) as <node>/Geom."""
