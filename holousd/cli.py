@@ -20,6 +20,7 @@ _COMMAND_MODULES = (
     "holousd.render._cli",
     "holousd.physics._cli",
     "holousd.stages._cli",
+    "holousd.stages._pipeline_cli",
 )
 """Modules that contribute sub-commands, in the order ``--help`` lists them."""
 

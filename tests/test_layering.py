@@ -19,6 +19,7 @@ FORBIDDEN = {
     "render": ("stages", "cli", "synth"),
     "physics": ("stages", "cli", "render", "synth"),
     "io": ("stages", "cli", "physics", "render"),
+    "graph": ("stages", "cli", "physics", "render", "synth", "io", "eval"),
     "eval": ("cli",),  # the benchmark harness composes stages
 }
 

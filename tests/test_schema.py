@@ -150,6 +150,7 @@ def test_wheel_ships_plugin(tmp_path: Path) -> None:
     assert "holousd/_plugins/holousd/resources/plugInfo.json" in names
     assert "holousd/_plugins/holousd/resources/generatedSchema.usda" in names
     assert "holousd/py.typed" in names
+    assert "holousd/eval/reference/bench.json" in names  # the demo report's reference speed-vs-accuracy points
 
 
 def test_plugin_dir_is_found() -> None:

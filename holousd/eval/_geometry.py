@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -153,6 +153,9 @@ class SceneGeometryReport:
     """Ground-truth objects that have a predicted mesh, percent (OR%)."""
     per_object: dict[str, GeometryMetrics]
     """Ground-truth object name -> visible metrics of its own mesh (missing objects absent)."""
+    per_object_complete: dict[str, GeometryMetrics] = field(default_factory=dict)
+    """Ground-truth object name -> metrics of its own mesh against its complete ground-truth surface (the sides
+    no camera saw included: what completion is judged on)."""
     missing: list[str]
     """Ground-truth objects without a predicted mesh."""
 
@@ -225,13 +228,14 @@ def evaluate_fit(
     gt_s = samples_of({k: m for k, (_, m) in gt_meshes.items()})
     pred_s = samples_of(pred_meshes)
     gt_vis = {k: visible_mask(p, obs.intrinsics[pick], obs.poses[pick], depths) for k, (p, _) in gt_s.items()}
-    per_object = {}
+    per_object, per_object_complete = {}, {}
     missing = []
     for k, (name, _) in gt_meshes.items():
         if k not in pred_s:
             missing.append(name)
             continue
         per_object[name] = geometry_metrics(pred_s[k], gt_s[k], gt_visible=gt_vis[k], threshold=threshold)
+        per_object_complete[name] = geometry_metrics(pred_s[k], gt_s[k], threshold=threshold)
 
     def cat(d: dict[int, tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
         if not d:
@@ -247,5 +251,6 @@ def evaluate_fit(
         complete=geometry_metrics(all_pred, all_gt, threshold=threshold),
         object_rate=100.0 * (len(gt_meshes) - len(missing)) / max(1, len(gt_meshes)),
         per_object=per_object,
+        per_object_complete=per_object_complete,
         missing=missing,
     )

@@ -13,6 +13,9 @@ from ._colliders import (
     convex_decomposition,
     convex_hull,
     convexity,
+    cut_above,
+    cut_axis,
+    cut_below,
 )
 from ._energy import e_pene_mesh, e_pene_sdf, e_stable, e_touch
 from ._errors import PhysicsInputError
@@ -54,6 +57,9 @@ __all__ = [
     "convex_decomposition",
     "convex_hull",
     "convexity",
+    "cut_above",
+    "cut_axis",
+    "cut_below",
     "default_device",
     "e_pene_mesh",
     "e_pene_sdf",

@@ -48,6 +48,11 @@ class StabilityConfig:
     """Primary solver name (``xpbd`` or ``mujoco``)."""
     iterations: int = 8
     """XPBD constraint iterations per step."""
+    xpbd_substeps: int = 4
+    """XPBD steps per protocol step (XPBD then runs at ``hz * xpbd_substeps``). At 240 Hz XPBD's contacts jitter
+    on flat-on-flat hulls of fitted meshes (a book on a table turned 13 degrees and a box on a box 8, where MuJoCo
+    at the same rate kept both still); at 960 Hz the two solvers agreed on all 48 objects of the hard suite's
+    fast reconstructions. MuJoCo runs at ``hz``."""
     apply_damping: bool = False
     """Apply authored HoloPhysicsAPI damping. Off: the protocol allows no damping beyond the solver's own."""
     stop_when_decided: bool = False
@@ -157,10 +162,15 @@ def _model_config(cfg: StabilityConfig, solver: str) -> ModelConfig:
     return ModelConfig(friction=cfg.friction, device=cfg.device, decompose_concave_meshes=solver == "mujoco")
 
 
+def _rate(cfg: StabilityConfig, solver: str) -> float:
+    """Step rate of ``solver`` under the protocol, 1/s."""
+    return cfg.hz * (max(1, cfg.xpbd_substeps) if solver == "xpbd" else 1)
+
+
 def _sim_config(cfg: StabilityConfig, solver: str) -> SimulationConfig:
     return SimulationConfig(
         seconds=cfg.seconds,
-        hz=cfg.hz,
+        hz=_rate(cfg, solver),
         solver=SolverConfig(name=solver, iterations=cfg.iterations),
         apply_damping=cfg.apply_damping,
     )
@@ -198,7 +208,7 @@ def _stopper(cfg: StabilityConfig, hz: float) -> Callable[[np.ndarray], bool] | 
 
 
 def _run(pm: PhysicsModel, cfg: StabilityConfig, solver: str, progress: Callable[[float], None] | None) -> Trajectories:
-    return simulate_model(pm, _sim_config(cfg, solver), progress=progress, stop=_stopper(cfg, cfg.hz))
+    return simulate_model(pm, _sim_config(cfg, solver), progress=progress, stop=_stopper(cfg, _rate(cfg, solver)))
 
 
 def stability(

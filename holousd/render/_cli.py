@@ -6,17 +6,9 @@ import argparse
 import sys
 from pathlib import Path
 
+from holousd._argtypes import resolution
+
 __all__ = ["add_commands"]
-
-
-def _resolution(text: str) -> tuple[int, int]:
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"resolution must look like 256x256, got {text!r}") from None
-    if w <= 0 or h <= 0:
-        raise argparse.ArgumentTypeError(f"resolution must be positive, got {text!r}")
-    return w, h
 
 
 def add_commands(subparsers: argparse._SubParsersAction) -> None:
@@ -33,7 +25,7 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     render.add_argument("--cameras", choices=("orbit", "observed"), default="orbit",
                         help="orbit around the objects, or the UsdGeom.Camera prims under /World/Cameras")  # fmt: skip
     render.add_argument("--frames", type=int, default=48, help="number of frames")
-    render.add_argument("--resolution", type=_resolution, default=(256, 256), metavar="WxH", help="image size")
+    render.add_argument("--resolution", type=resolution, default=(256, 256), metavar="WxH", help="image size")
     render.add_argument("--fps", type=int, default=24, help="video frame rate")
     render.add_argument("--background", type=float, nargs=3, default=(1.0, 1.0, 1.0), metavar=("R", "G", "B"),
                         help="colour behind the splats, in [0, 1]")  # fmt: skip

@@ -10,6 +10,8 @@ from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
+from holousd._argtypes import positive_int
+
 __all__ = ["add_commands", "drop_depth", "run_fit"]
 
 _PRESET_HELP = """presets (holousd.stages._fit):
@@ -22,13 +24,6 @@ Writes OUT/00_observe.usda (cameras, one node per instance id, background) and O
 grids under OUT/assets/10_fit/, watertight meshes in object coordinates, object poses, background mesh), plus
 OUT/fit_report.json. Fitting needs instance masks; depth (metric or relative) and normals are used when the
 capture has them."""
-
-
-def _positive(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text}")
-    return value
 
 
 def add_commands(subparsers: argparse._SubParsersAction) -> None:
@@ -46,7 +41,7 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     fit.add_argument("--seed", type=int, default=0, help="seed of ray sampling")
     fit.add_argument("--iterations", type=int, default=None, help="refinement steps (default: the preset's)")
     fit.add_argument("--no-depth", action="store_true", help="ignore the capture's depth and normals")
-    fit.add_argument("--threads", type=_positive, default=None, help="torch CPU threads (default: torch's)")
+    fit.add_argument("--threads", type=positive_int, default=None, help="torch CPU threads (default: torch's)")
     fit.add_argument("--no-progress", action="store_true", help="do not show a progress bar on stderr")
     fit.set_defaults(handler=_fit_command)
 
@@ -66,9 +61,9 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     bench.add_argument("--depth", choices=("both", "with", "without"), default="both",
                        help="run with the depth input, without it (RGB + masks only), or both")  # fmt: skip
     bench.add_argument("--resolution", default="256x256", metavar="WxH", help="resolution of generated scenes")
-    bench.add_argument("--frames", type=_positive, default=100, help="frames per generated scene")
+    bench.add_argument("--frames", type=positive_int, default=100, help="frames per generated scene")
     bench.add_argument("--seed", type=int, default=0, help="seed of generation and fitting")
-    bench.add_argument("--threads", type=_positive, default=None, help="torch CPU threads (default: torch's)")
+    bench.add_argument("--threads", type=positive_int, default=None, help="torch CPU threads (default: torch's)")
     bench.set_defaults(handler=_bench_command)
 
 

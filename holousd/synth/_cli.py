@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from holousd._argtypes import positive_int, resolution
+
 __all__ = ["add_commands"]
 
 
@@ -23,23 +25,6 @@ z-depth along the optical axis; normals are in the OpenCV camera frame; mask 0 i
 The same --seed gives byte-identical files."""
 
 
-def _resolution(text: str) -> tuple[int, int]:
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT such as 320x240, got {text!r}") from None
-    if not (16 <= w <= 4096 and 16 <= h <= 4096):
-        raise argparse.ArgumentTypeError(f"resolution {w}x{h} out of range; use 16..4096 pixels per side")
-    return w, h
-
-
-def _positive(text: str) -> int:
-    value = int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text}")
-    return value
-
-
 def add_commands(subparsers: argparse._SubParsersAction) -> None:
     """Register ``example`` and ``synth`` on the ``holousd`` parser."""
     synth = subparsers.add_parser(
@@ -53,9 +38,9 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     synth.add_argument("--suite", choices=("demo", "bench", "hard"), default="demo", help="which scenes to generate")
     synth.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder, one sub-folder per scene")
     synth.add_argument("--seed", type=int, default=0, help="seed of layouts, textures and camera paths")
-    synth.add_argument("--frames", type=_positive, default=100, help="frames rendered per scene")
+    synth.add_argument("--frames", type=positive_int, default=100, help="frames rendered per scene")
     synth.add_argument(
-        "--resolution", type=_resolution, default="320x240", metavar="WxH", help="image size in pixels, e.g. 320x240"
+        "--resolution", type=resolution, default="320x240", metavar="WxH", help="image size in pixels, e.g. 320x240"
     )
     synth.add_argument(
         "--format",

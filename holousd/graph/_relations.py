@@ -1,0 +1,285 @@
+"""Support tree and beside pairs inferred from geometry alone (world-space triangle meshes).
+
+Support: an object rests on the node whose surface lies directly below its lowest points. Rays are cast
+straight down from the object's lowest vertices (started a little above them, so that a slight penetration
+still finds the surface it sank into); every other object whose hit lies within ``max_gap`` gets one vote per
+ray and the most-voted one is the parent. Only nodes whose bottom is lower than the object's bottom can be
+parents, which keeps the graph a tree. Nothing below -> the background.
+
+Beside: siblings (same parent) whose surfaces come within ``beside_distance`` of each other.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["RelationConfig", "Relations", "infer_relations", "push_out_of", "settle_offsets"]
+
+BACKGROUND = "background"
+"""Name of the root node (same as :data:`holousd.usd.BACKGROUND`)."""
+
+Mesh = tuple[np.ndarray, np.ndarray]
+"""``(points [N, 3], faces [F, 3])`` in world coordinates, metres."""
+
+
+@dataclass(kw_only=True)
+class RelationConfig:
+    """Settings of the relation inference."""
+
+    bottom_band: float = 0.01
+    """Vertices within this height of an object's lowest point are its contact points, metres."""
+    max_rays: int = 64
+    """Most rays cast per object (contact points are subsampled evenly)."""
+    ray_start: float = 0.02
+    """Rays start this far above each contact point (tolerates that much penetration), metres."""
+    max_gap: float = 0.05
+    """Largest drop from a contact point to a supporting surface, metres."""
+    beside_distance: float = 0.01
+    """Siblings whose surfaces come this close touch each other, metres."""
+    beside_samples: int = 2000
+    """Surface samples per object for the beside test."""
+    seed: int = 0
+    """Seed of the surface sampling."""
+
+
+@dataclass(kw_only=True)
+class Relations:
+    """The inferred scene graph."""
+
+    support: dict[str, str] = field(default_factory=dict)
+    """Object name -> the node it rests on ('background' for the floor / room)."""
+    beside: dict[str, list[str]] = field(default_factory=dict)
+    """Object name -> touching siblings (symmetric; every object has an entry)."""
+    votes: dict[str, dict[str, int]] = field(default_factory=dict)
+    """Object name -> rays that hit each candidate parent (diagnostics)."""
+
+    def children(self, parent: str) -> list[str]:
+        """Objects resting directly on ``parent``, in name order."""
+        return sorted(k for k, v in self.support.items() if v == parent)
+
+    def tree_lines(self, root: str = BACKGROUND) -> list[str]:
+        """The support tree as indented text lines (root first), beside pairs in brackets."""
+        lines = [root]
+
+        def walk(node: str, depth: int) -> None:
+            for child in self.children(node):
+                beside = self.beside.get(child) or []
+                extra = f"  [beside: {', '.join(beside)}]" if beside else ""
+                lines.append(f"{'  ' * depth}- {child}{extra}")
+                walk(child, depth + 1)
+
+        walk(root, 1)
+        return lines
+
+
+def _trimesh(mesh: Mesh):  # noqa: ANN202
+    import trimesh
+
+    return trimesh.Trimesh(vertices=np.asarray(mesh[0], float), faces=np.asarray(mesh[1], np.int64), process=False)
+
+
+def _contact_points(points: np.ndarray, config: RelationConfig) -> np.ndarray:
+    low = points[points[:, 2] <= points[:, 2].min() + config.bottom_band]  # [K, 3]
+    if len(low) > config.max_rays:
+        low = low[np.unique(np.linspace(0, len(low) - 1, config.max_rays).round().astype(int))]
+    return low
+
+
+def infer_relations(meshes: dict[str, Mesh], config: RelationConfig | None = None) -> Relations:
+    """Infer the support tree and beside pairs of objects from their world-space meshes.
+
+    Args:
+        meshes: Object name -> ``(points [N, 3], faces [F, 3])`` in world coordinates (background excluded).
+        config: Settings.
+
+    Returns:
+        Support parent per object (a tree rooted at 'background') and beside lists.
+    """
+    from trimesh.ray.ray_triangle import RayMeshIntersector
+
+    config = config or RelationConfig()
+    names = [n for n, m in meshes.items() if len(m[0]) and len(m[1])]
+    tms = {n: _trimesh(meshes[n]) for n in names}
+    bounds = {n: tms[n].bounds for n in names}  # [2, 3]
+    intersectors = {n: RayMeshIntersector(tms[n]) for n in names}
+    result = Relations()
+    for name in names:
+        pts = np.asarray(meshes[name][0], float)
+        low = _contact_points(pts, config)
+        bottom = float(pts[:, 2].min())
+        votes: dict[str, int] = {}
+        origins = low + np.array([0.0, 0.0, config.ray_start])
+        directions = np.tile([0.0, 0.0, -1.0], (len(origins), 1))
+        best = np.full(len(origins), np.inf)  # [K] drop to the closest surface below
+        owner = np.full(len(origins), "", dtype=object)
+        for other in names:
+            if other == name:
+                continue
+            lo, hi = bounds[other]
+            if lo[2] >= bottom - 1e-6 or hi[2] < bottom - config.max_gap:  # parents sit lower and reach up to it
+                continue
+            inside = (low[:, 0] >= lo[0]) & (low[:, 0] <= hi[0]) & (low[:, 1] >= lo[1]) & (low[:, 1] <= hi[1])
+            if not inside.any():
+                continue
+            locations, ray_index, _ = intersectors[other].intersects_location(origins, directions)
+            if len(ray_index) == 0:
+                continue
+            drop = origins[ray_index, 2] - locations[:, 2] - config.ray_start  # from the contact point, metres
+            ok = (drop >= -config.ray_start) & (drop <= config.max_gap)
+            for r, d in zip(ray_index[ok], drop[ok], strict=True):
+                if d < best[r]:
+                    best[r], owner[r] = d, other
+        for o in owner:
+            if o:
+                votes[o] = votes.get(o, 0) + 1
+        result.votes[name] = votes
+        result.support[name] = max(sorted(votes), key=lambda k: votes[k]) if votes else BACKGROUND
+    result.beside = {n: [] for n in names}
+    rng = np.random.default_rng(config.seed)
+    samples = {}
+    for n in names:
+        s, _ = _sample(tms[n], config.beside_samples, rng)
+        samples[n] = s
+    for i, a in enumerate(names):
+        for b in names[i + 1 :]:
+            if result.support[a] != result.support[b]:
+                continue
+            gap = np.maximum(bounds[a][0] - bounds[b][1], bounds[b][0] - bounds[a][1]).max()
+            if gap > config.beside_distance:
+                continue
+            if (
+                _surface_distance(tms[b], samples[a]) <= config.beside_distance
+                or _surface_distance(tms[a], samples[b]) <= config.beside_distance
+            ):
+                result.beside[a].append(b)
+                result.beside[b].append(a)
+    for n in names:
+        result.beside[n].sort()
+    return result
+
+
+def _sample(tm, count: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:  # noqa: ANN001
+    import trimesh
+
+    pts, face = trimesh.sample.sample_surface(tm, count, seed=int(rng.integers(2**31)))
+    return np.concatenate([np.asarray(pts), np.asarray(tm.vertices)]), face
+
+
+def _surface_distance(tm, points: np.ndarray) -> float:  # noqa: ANN001
+    """Smallest distance from ``points`` [P, 3] to the surface of ``tm``, metres."""
+    import trimesh
+
+    lo, hi = tm.bounds
+    near = points[np.all((points >= lo - 0.05) & (points <= hi + 0.05), axis=1)]
+    if len(near) == 0:
+        return float("inf")
+    _, dist, _ = trimesh.proximity.closest_point(tm, near)
+    return float(np.min(dist))
+
+
+def settle_offsets(meshes: dict[str, Mesh], background: Mesh | None, relations: Relations,
+                   config: RelationConfig | None = None, *, clearance: float = 0.001, max_offset: float = 0.06,
+                   supports: dict[str, Mesh] | None = None) -> dict[str, float]:  # fmt: skip
+    """Vertical shifts that set each object onto its support parent (the state adjustment of s2, z only).
+
+    Parents are settled before their children (breadth-first from the background) and children move with
+    their parent's shift first. For each object, rays are cast down onto its parent's surface from above its
+    contact points; the object is moved so that its lowest point sits ``clearance`` above the highest hit.
+    Fitted meshes typically sink a voxel or two into their support, which a simulator resolves violently.
+
+    Args:
+        meshes: Object name -> world ``(points [N, 3], faces [F, 3])`` before the shift.
+        background: World mesh of the background (parent 'background'), or None (then such objects stay).
+        relations: The support tree from :func:`infer_relations`.
+        config: Ray settings (``bottom_band``, ``max_rays``).
+        clearance: Gap left between an object's lowest point and its parent's surface, metres.
+        max_offset: Larger shifts are not applied (the parent is probably wrong), metres.
+        supports: Surfaces to set children onto, by parent name, world coordinates before the shift (e.g. the
+            parents' colliders, which fill hollows a mesh has); default the parents' meshes.
+
+    Returns:
+        Object name -> total z shift, metres (its own plus its ancestors').
+    """
+    from trimesh.ray.ray_triangle import RayMeshIntersector
+
+    config = config or RelationConfig()
+    shift: dict[str, float] = {}
+    surfaces: dict[str, Mesh] = {**meshes, **(supports or {})}
+    if background is not None and len(background[1]):
+        surfaces[BACKGROUND] = background
+    order: list[str] = []
+    frontier = [BACKGROUND]
+    while frontier:
+        node = frontier.pop(0)
+        kids = relations.children(node)
+        order.extend(kids)
+        frontier.extend(kids)
+    order.extend(sorted(n for n in meshes if n not in order))  # not reachable (should not happen)
+    for name in order:
+        parent = relations.support.get(name, BACKGROUND)
+        base = shift.get(parent, 0.0) if parent != BACKGROUND else 0.0
+        pts = np.asarray(meshes[name][0], float) + np.array([0.0, 0.0, base])
+        own = 0.0
+        if parent in surfaces:
+            low = _contact_points(pts, config)
+            bottom = float(pts[:, 2].min())
+            ppts, pfaces = surfaces[parent]
+            ppts = np.asarray(ppts, float) + np.array([0.0, 0.0, shift.get(parent, 0.0)])
+            tm = _trimesh((ppts, pfaces))
+            origins = low.copy()
+            origins[:, 2] = bottom + max_offset
+            locations, _, _ = RayMeshIntersector(tm).intersects_location(
+                origins, np.tile([0.0, 0.0, -1.0], (len(origins), 1)), multiple_hits=False
+            )
+            if len(locations):
+                below = locations[locations[:, 2] >= bottom - max_offset, 2]
+                if len(below):
+                    target = float(np.max(below)) + clearance  # no contact point stays inside the parent
+                    if abs(target - bottom) <= max_offset:
+                        own = target - bottom
+        shift[name] = base + own
+    return shift
+
+
+def push_out_of(mesh: Mesh, solid: Mesh, *, samples: int = 400, clearance: float = 0.002,
+                max_offset: float = 0.06) -> np.ndarray:  # fmt: skip
+    """Horizontal shift [3] that moves ``mesh`` out of the closed mesh ``solid`` (e.g. an object out of a wall).
+
+    Up to ``samples`` vertices of ``mesh`` are tested for lying inside ``solid``; each one inside whose closest
+    surface point lies more sideways than up or down is pushed to that point, and the shift is the largest push
+    along x and along y (z is left to :func:`settle_offsets`). Zero when nothing is inside, ``solid`` is not
+    watertight, or the shift would exceed ``max_offset`` (metres).
+    """
+    import trimesh
+
+    solid_tm = _trimesh(solid)
+    if not solid_tm.is_watertight:
+        return np.zeros(3)
+    pts = np.asarray(mesh[0], float)
+    if len(pts) > samples:
+        pts = pts[np.unique(np.linspace(0, len(pts) - 1, samples).round().astype(int))]
+    lo, hi = solid_tm.bounds
+    pts = pts[np.all((pts >= lo) & (pts <= hi), axis=1)]
+    if len(pts) == 0:
+        return np.zeros(3)
+    inside = solid_tm.contains(pts)
+    if not inside.any():
+        return np.zeros(3)
+    closest, _, _ = trimesh.proximity.closest_point(solid_tm, pts[inside])
+    push = closest - pts[inside]  # [K, 3] from the inside point to the surface
+    push = push[np.linalg.norm(push[:, :2], axis=1) > np.abs(push[:, 2])]  # sideways only (floors: settle)
+    if len(push) == 0:
+        return np.zeros(3)
+    shift = np.zeros(3)
+    for axis in (0, 1):
+        pos, neg = push[:, axis].max(), push[:, axis].min()
+        shift[axis] = pos if abs(pos) >= abs(neg) else neg
+        if abs(shift[axis]) < 1e-9:
+            shift[axis] = 0.0
+        else:
+            shift[axis] += np.sign(shift[axis]) * clearance
+    if np.abs(shift).max() > max_offset:
+        return np.zeros(3)
+    return shift
