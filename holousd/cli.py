@@ -25,8 +25,22 @@ _COMMAND_MODULES = (
 """Modules that contribute sub-commands, in the order ``--help`` lists them."""
 
 
-class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter, argparse.RawDescriptionHelpFormatter):
-    """Show defaults and keep the description's line breaks."""
+class _HelpFormatter(argparse.RawDescriptionHelpFormatter):
+    """Show each option's default (where it has one worth saying) and keep the description's line breaks.
+
+    Left out: required options, options without a default (None), on/off flags (False), and options whose help
+    already says what the default is. A ``WxH`` size shows as ``160x120``.
+    """
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        default = action.default
+        if (action.required or default is None or default is False or default is argparse.SUPPRESS
+                or "default" in text or "%(default)" in text):  # fmt: skip
+            return text
+        if action.metavar == "WxH" and isinstance(default, tuple) and len(default) == 2:
+            return f"{text} (default: {default[0]}x{default[1]})"
+        return f"{text} (default: %(default)s)"
 
 
 class _Parser(argparse.ArgumentParser):

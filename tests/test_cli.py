@@ -24,6 +24,19 @@ def test_no_command_prints_help(capsys: pytest.CaptureFixture) -> None:
     assert "usage: holousd" in capsys.readouterr().out
 
 
+def test_subcommand_help_shows_real_defaults_only(capsys: pytest.CaptureFixture) -> None:
+    for command in ("reconstruct", "demo", "bench", "synth", "fit"):
+        with pytest.raises(SystemExit) as exit_info:
+            main([command, "--help"])
+        assert exit_info.value.code == 0
+        text = " ".join(capsys.readouterr().out.split())  # argparse wraps lines
+        assert "(default: None)" not in text and "(default: False)" not in text, command
+        assert "--seed SEED" in text and "(default: 0)" in text, command
+    with pytest.raises(SystemExit):  # the demo's capture size reads as a size, not as a Python tuple
+        main(["demo", "--help"])
+    assert "capture size (default: 160x120)" in " ".join(capsys.readouterr().out.split())
+
+
 def test_info_table_and_json(example_dir: Path, capsys: pytest.CaptureFixture) -> None:
     assert main(["info", str(example_dir / "scene.usda")]) == 0
     out = capsys.readouterr().out
