@@ -259,3 +259,15 @@ def test_fit_without_depth_uses_the_visual_hull(tmp_path: Path) -> None:
     # a 12-view visual hull of a sphere: centred on it and not much larger than it
     assert np.linalg.norm((pts.min(0) + pts.max(0))[:2] / 2 - np.asarray(SPHERE.centre)[:2]) < 0.03
     assert np.all(pts.max(0) - pts.min(0) < 2 * SPHERE.radius + 0.08)
+
+
+def test_bench_fit_names_a_scene_the_data_lacks(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    import json
+
+    from holousd.cli import main
+
+    (tmp_path / "suite.json").write_text(json.dumps({"scenes": [{"folder": "bench_00"}]}))
+    code = main(["bench-fit", "--out", str(tmp_path / "out"), "--data", str(tmp_path), "--scenes", "bench_07"])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "no scene 'bench_07'" in err and "bench_00" in err

@@ -193,21 +193,28 @@ def _bench_command(args: argparse.Namespace) -> int:
     unknown = [p for p in presets if p not in PRESETS]
     if unknown:
         raise HolousdError(f"unknown preset {unknown[0]!r}; choose from {', '.join(PRESETS)}")
+    wanted = [s.strip() for s in args.scenes.split(",") if s.strip()] if args.scenes else None
     data = args.data
-    if data is None:
-        from holousd.synth import SynthConfig, generate_suite
+    if data is None:  # generate what is not there yet, only the scenes asked for
+        from holousd.synth import SynthConfig, generate_suite, scene_names
 
         w, h = (int(v) for v in args.resolution.lower().split("x"))
         data = args.out / "data"
-        if not (data / "suite.json").is_file():
-            generate_suite(args.suite, data, SynthConfig(seed=args.seed, frames=args.frames, width=w, height=h))
-    index_file = Path(data) / "suite.json"
-    if not index_file.is_file():
-        raise HolousdError(f"{index_file}: no synth suite here; run 'holousd synth --suite {args.suite} --out {data}'")
-    scenes = [s["folder"] for s in json.loads(index_file.read_text())["scenes"]]
-    if args.scenes:
-        wanted = [s.strip() for s in args.scenes.split(",")]
-        scenes = [s for s in scenes if s in wanted]
+        scenes = wanted or scene_names(args.suite)
+        todo = [s for s in scenes if not (data / s / "gt" / "graph.json").is_file()]
+        if todo:
+            generate_suite(args.suite, data, SynthConfig(seed=args.seed, frames=args.frames, width=w, height=h),
+                           scenes=todo)  # fmt: skip
+    else:
+        index_file = Path(data) / "suite.json"
+        if not index_file.is_file():
+            raise HolousdError(f"{index_file}: no synth suite here; run 'holousd synth --suite {args.suite} "
+                               f"--out {data}'")  # fmt: skip
+        scenes = [s["folder"] for s in json.loads(index_file.read_text())["scenes"]]
+        missing = [s for s in wanted or [] if s not in scenes]
+        if missing:
+            raise HolousdError(f"{index_file}: no scene {missing[0]!r} here (it has {', '.join(scenes)})")
+        scenes = [s for s in scenes if wanted is None or s in wanted]
     modes = {"both": [True, False], "with": [True], "without": [False]}[args.depth]
     runs = []
     from tqdm import tqdm
