@@ -259,12 +259,12 @@ def evaluate_scene(recon: str | os.PathLike[str], gt: str | os.PathLike[str],
     if config.physics:
         from holousd.physics import stability
 
-        said: set[int] = set()
+        said: set[tuple[str, int]] = set()
 
         def tick(solver: str, fraction: float) -> None:
             quarter = int(fraction * 4)
-            if quarter not in said:
-                said.add(quarter)
+            if (solver, quarter) not in said:  # each solver's run reports its own quarters
+                said.add((solver, quarter))
                 say(f"eval: stability ({solver}, 2 s simulated) {25 * quarter}%")
 
         say("eval: stability verdict (the first run on a machine compiles Newton's kernels: a few minutes)")

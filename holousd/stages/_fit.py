@@ -634,7 +634,7 @@ def _refine_steps(active: list[_Instance], frames: _Frames, relative: bool, conf
         losses = {name: float(value.detach()) for name, value in terms.items()}
         if progress is not None:
             progress.update(1)  # type: ignore[attr-defined]
-            progress.set_postfix(loss=f"{float(loss):.4f}")  # type: ignore[attr-defined]
+            progress.set_postfix(loss=f"{float(loss.detach()):.4f}")  # type: ignore[attr-defined]
     for k, inst in enumerate(active):
         inst.sdf = grids.sdf[k].detach().cpu().numpy()[0, 0].astype(np.float32)
         inst.color = torch.sigmoid(grids.color[k].detach()).mean(dim=(2, 3, 4))[0].cpu().numpy()
