@@ -23,6 +23,8 @@ _COMMAND_MODULES = (
     "holousd.stages._pipeline_cli",
 )
 """Modules that contribute sub-commands, in the order ``--help`` lists them."""
+_NO_WARP_COMMANDS = frozenset({"info", "validate", "export", "example"})
+"""Sub-commands that never run Warp (they skip importing it)."""
 
 
 class _HelpFormatter(argparse.RawDescriptionHelpFormatter):
@@ -80,12 +82,15 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the ``holousd`` command and return its exit code (0 success, 1 failure found, 2 usage/input error)."""
     from holousd._errors import HolousdError
+    from holousd._warp import quiet_warp
 
     parser = build_parser()
     args = parser.parse_args(argv)
     if getattr(args, "handler", None) is None:
         parser.print_help()
         return 2
+    if args.command not in _NO_WARP_COMMANDS:
+        quiet_warp()  # its banner and module-load lines would land in the command's (JSON) output
     try:
         return int(args.handler(args))
     except HolousdError as exc:

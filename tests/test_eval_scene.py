@@ -133,3 +133,16 @@ def test_summary_table_means_over_scenes() -> None:
     lines = summary_table([payload]).splitlines()
     assert lines[2] == "| hard | fast | 2 | 40 | 85.0 | 3.00 | 21.0 | 0.800 | 100 | 50 | – | 900 |"
     assert lines[-1] == "- hard: `holousd bench --suite hard` on cpu X, cores 2, 2026-11-22"
+
+
+def test_eval_json_from_the_command_line_is_pure_json(capture: Path) -> None:
+    """A fresh ``holousd eval --json`` process (Warp initialised in it, physics on) prints nothing but the JSON."""
+    import json
+    import subprocess
+    import sys
+
+    result = subprocess.run([sys.executable, "-m", "holousd.cli", "eval", str(capture / "gt"), "--gt", str(capture),
+                             "--json", "--samples", "5000"], capture_output=True, text=True, timeout=600)  # fmt: skip
+    assert result.returncode == 0, result.stderr[-2000:]
+    d = json.loads(result.stdout)
+    assert d["physics"]["stable_pct"] == 100.0 and d["physics"]["cross_check"]["solver"] == "mujoco"

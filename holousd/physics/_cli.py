@@ -10,6 +10,8 @@ import json
 import sys
 from pathlib import Path
 
+from holousd._warp import quiet_warp
+
 __all__ = ["add_commands"]
 
 _FORMATTER = argparse.ArgumentDefaultsHelpFormatter
@@ -84,13 +86,6 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     bench.set_defaults(handler=_bench)
 
 
-def _quiet_warp() -> None:
-    """Keep Warp's informational messages off stdout (JSON output must stay parseable)."""
-    import warp as wp
-
-    wp.config.log_level = wp.LOG_WARNING
-
-
 def _fail(command: str, exc: Exception) -> int:
     print(f"holousd {command}: error: {exc}", file=sys.stderr)
     return 2
@@ -118,7 +113,7 @@ def _stability(args: argparse.Namespace) -> int:
     from ._errors import PhysicsInputError
     from ._stability import StabilityConfig, stability, stability_each_alone
 
-    _quiet_warp()
+    quiet_warp()
     cross = None
     if args.cross_check:
         cross = args.cross_solver or ("mujoco" if args.solver != "mujoco" else "xpbd")
@@ -177,7 +172,7 @@ def _simulate(args: argparse.Namespace) -> int:
     from ._simulate import SimulationConfig, simulate, write_trajectory_layer
     from ._solvers import SolverConfig
 
-    _quiet_warp()
+    quiet_warp()
     try:
         if args.seconds <= 0 or args.hz <= 0 or args.fps <= 0:
             raise PhysicsInputError("--seconds, --hz and --fps must be positive")
@@ -226,7 +221,7 @@ def _bench(args: argparse.Namespace) -> int:
     from ._bench import bench_physics
     from ._errors import PhysicsInputError
 
-    _quiet_warp()
+    quiet_warp()
     try:
         counts = tuple(int(c) for c in args.counts.split(","))
     except ValueError:
