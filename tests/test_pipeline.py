@@ -265,3 +265,12 @@ def test_background_mesh_collider_option(recon: tuple[Path, _pipeline.PipelineRe
     )
     assert scene.get_collider("background").approximation == "none"
     assert {o.name for o in result.objects} == set(scene.objects())
+
+
+def test_threads_reach_fit_and_appearance_and_do_not_change_the_hash() -> None:
+    config = preset("fast", threads=1)
+    assert config.fit.threads == 1 and config.appearance.threads == 1
+    plain = preset("fast")
+    for name in ("fit", "appearance"):
+        one, default = getattr(config, name), getattr(plain, name)
+        assert _pipeline._stage_hash("m", one, "") == _pipeline._stage_hash("m", default, "")

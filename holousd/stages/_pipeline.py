@@ -92,6 +92,8 @@ class AppearanceStageConfig:
     """Seed of splat sampling and frame order."""
     progress: bool = False
     """Show a progress bar of the fit on stderr (does not change the result)."""
+    threads: int | None = None
+    """Torch CPU threads during the fit (restored afterwards); None keeps torch's setting."""
 
 
 @dataclass(kw_only=True)
@@ -128,7 +130,8 @@ PRESETS: dict[str, PipelineConfig] = {
 
 
 def preset(name: str, *, seed: int = 0, progress: bool = True, threads: int | None = None) -> PipelineConfig:
-    """A copy of the named preset with the seed (fit, physics, appearance) and progress settings applied."""
+    """A copy of the named preset with the seed (fit, physics, appearance), progress and torch thread settings
+    (fit and appearance) applied."""
     if name not in PRESETS:
         raise HolousdError(f"unknown preset {name!r}; choose one of {', '.join(PRESETS)}")
     base = PRESETS[name]
@@ -136,7 +139,7 @@ def preset(name: str, *, seed: int = 0, progress: bool = True, threads: int | No
         base,
         fit=replace(base.fit, seed=seed, progress=progress, threads=threads),
         physics=replace(base.physics, seed=seed),
-        appearance=replace(base.appearance, seed=seed, progress=progress),
+        appearance=replace(base.appearance, seed=seed, progress=progress, threads=threads),
     )
 
 
@@ -338,7 +341,15 @@ def _run_appearance(scene: SceneGraph, obs: Any, config: AppearanceStageConfig, 
                            max_splats=config.max_splats, seed=config.seed, provenance="s3_appearance",
                            fit=SplatFitConfig(iterations=config.iterations, seed=config.seed,
                                               progress=config.progress))  # fmt: skip
-    return fit_appearance(scene, _appearance_frames(obs, config), cfg).scene
+    import torch
+
+    previous = torch.get_num_threads()
+    if config.threads is not None:
+        torch.set_num_threads(config.threads)
+    try:
+        return fit_appearance(scene, _appearance_frames(obs, config), cfg).scene
+    finally:
+        torch.set_num_threads(previous)
 
 
 # --------------------------------------------------------------------------------------------- the pipeline
