@@ -189,5 +189,14 @@ def test_hard_suite_names_and_cli(tmp_path: Path, capsys: pytest.CaptureFixture[
     assert main(args) == 2  # refuses to overwrite without --overwrite
     assert "--overwrite" in capsys.readouterr().err
     assert main([*args, "--overwrite"]) == 0
+    more = [*args]
+    more[more.index("top_only")] = "touching_siblings"
+    assert main(more) == 0  # a second scene into the same folder: the index lists both, in suite order
+    index = json.loads((tmp_path / "suite.json").read_text())
+    assert [s["folder"] for s in index["scenes"]] == ["touching_siblings", "top_only"]
+    other = [*more, "--overwrite"]
+    other[other.index("4")] = "5"
+    assert main(other) == 0  # made with other settings: the earlier scene is no longer listed beside it
+    assert [s["folder"] for s in json.loads((tmp_path / "suite.json").read_text())["scenes"]] == ["touching_siblings"]
     with pytest.raises(SystemExit):
         main(["synth", "--out", str(tmp_path), "--resolution", "big"])

@@ -316,15 +316,37 @@ def generate_suite(
             print(f"[{suite}] {name}", file=sys.stderr)
         spec = build_scene(suite, name, config.seed)
         results.append(generate_scene(spec, out / name, config, suite=suite))
+    entries = _index_entries(out / "suite.json", suite, config)  # scenes generated earlier with the same settings
+    for r in results:
+        entries[r.name] = {"name": r.name, "folder": r.name, "objects": r.objects, "frames": r.frames,
+                           "width": config.width, "height": config.height, "description": r.description}  # fmt: skip
     index = {
         "format": "holousd-synth-suite",
         "version": 1,
         "suite": suite,
         "seed": config.seed,
-        "scenes": [
-            {"name": r.name, "folder": r.name, "objects": r.objects, "frames": r.frames, "description": r.description}
-            for r in results
-        ],
+        "scenes": [entries[n] for n in SUITES[suite] if n in entries],
     }
     write_json(out / "suite.json", index)
     return results
+
+
+def _index_entries(path: Path, suite: str, config: SynthConfig) -> dict[str, dict]:
+    """The scene entries of an existing ``suite.json`` made with the same suite, seed, frames and size whose
+    folders still exist (so generating a few scenes into a suite folder keeps the others listed); {} otherwise."""
+    import json
+
+    try:
+        index = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return {}
+    if not isinstance(index, dict) or index.get("suite") != suite or index.get("seed") != config.seed:
+        return {}
+    kept = {}
+    for entry in index.get("scenes", []):
+        if not isinstance(entry, dict) or not (path.parent / str(entry.get("folder", ""))).is_dir():
+            continue
+        if (entry.get("frames"), entry.get("width"), entry.get("height")) == (config.frames, config.width,
+                                                                              config.height):  # fmt: skip
+            kept[str(entry["name"])] = entry
+    return kept
