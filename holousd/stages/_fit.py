@@ -37,6 +37,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from holousd._errors import HolousdError
+from holousd._torch_threads import torch_threads
 from holousd.geometry._grid import (
     Views,
     VoxelGrid,
@@ -527,18 +528,12 @@ class _RaySampler:
 
 def _refine(instances: list[_Instance], frames: _Frames, relative: bool, config: FitConfig,
             progress: object | None) -> dict[str, float]:  # fmt: skip
-    import torch
 
     active = [inst for inst in instances if inst.sdf is not None and inst.grid is not None]
     if not active or config.iterations <= 0:
         return {}
-    previous = torch.get_num_threads()
-    if config.threads is not None:
-        torch.set_num_threads(config.threads)
-    try:
+    with torch_threads(config.threads):
         return _refine_steps(active, frames, relative, config, progress)
-    finally:
-        torch.set_num_threads(previous)
 
 
 def _refine_steps(active: list[_Instance], frames: _Frames, relative: bool, config: FitConfig,

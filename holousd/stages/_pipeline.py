@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from holousd._errors import HolousdError
+from holousd._torch_threads import torch_threads
 from holousd.stages import _fit, _observe
 from holousd.stages import _physics_setup as _physics
 from holousd.stages._appearance import AppearanceConfig
@@ -341,15 +342,8 @@ def _run_appearance(scene: SceneGraph, obs: Any, config: AppearanceStageConfig, 
                            max_splats=config.max_splats, seed=config.seed, provenance="s3_appearance",
                            fit=SplatFitConfig(iterations=config.iterations, seed=config.seed,
                                               progress=config.progress))  # fmt: skip
-    import torch
-
-    previous = torch.get_num_threads()
-    if config.threads is not None:
-        torch.set_num_threads(config.threads)
-    try:
+    with torch_threads(config.threads):
         return fit_appearance(scene, _appearance_frames(obs, config), cfg).scene
-    finally:
-        torch.set_num_threads(previous)
 
 
 # --------------------------------------------------------------------------------------------- the pipeline
