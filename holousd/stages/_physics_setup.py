@@ -283,6 +283,18 @@ def _clip_to_walls(mesh: MeshData, pose: Pose, walls: list[tuple[int, float, flo
     return trimmed, float(before - solid.volume())
 
 
+def _to_object(world_parts: list[tuple[np.ndarray, np.ndarray]], pose: Pose,
+               offset: np.ndarray | None = None) -> list[MeshData]:  # fmt: skip
+    """World-space meshes ``(points [N, 3], faces)`` back in the coordinates of the object at ``pose``, after
+    undoing a world shift ``offset`` that was added to them (settling not yet written into the pose)."""
+    inverse = np.linalg.inv(pose.matrix())
+    out = []
+    for points, faces in world_parts:
+        shifted = points if offset is None else points - offset
+        out.append(MeshData(points=shifted @ inverse[:3, :3].T + inverse[:3, 3], faces=faces))
+    return out
+
+
 def _depth_inside(hull_points: np.ndarray, points: np.ndarray) -> np.ndarray:
     """How deep each point lies inside the convex hull of ``hull_points`` (negative: outside), metres."""
     from scipy.spatial import ConvexHull, QhullError
@@ -390,10 +402,7 @@ def _carve_contents(scene: SceneGraph, colliders: dict[str, tuple[str, list[Mesh
                 intruders.append(pts)
         world_parts, cuts = _carve(world_parts, intruders, config.contents_depth / 4, config.clearance)
         if cuts and world_parts:
-            inverse = np.linalg.inv(pose.matrix())
-            parts = [MeshData(points=(p - offsets[name]) @ inverse[:3, :3].T + inverse[:3, 3], faces=f)
-                     for p, f in world_parts]  # fmt: skip
-            colliders[name] = (kind, parts, ratio)
+            colliders[name] = (kind, _to_object(world_parts, pose, offsets[name]), ratio)
             carved[name] = carved.get(name, 0) + cuts
 
 
@@ -463,12 +472,8 @@ def _separate(colliders: dict[str, tuple[str, list[MeshData], float]], scene: Sc
                         new_parts.append((points, faces))
                 world[name] = new_parts
     for name in cuts:
-        pose = scene.get_pose(name)
-        inverse = np.linalg.inv(pose.matrix())
         kind, _, ratio = colliders[name]
-        parts = [MeshData(points=(p - offsets[name]) @ inverse[:3, :3].T + inverse[:3, 3], faces=f)
-                 for p, f in world[name]]  # fmt: skip
-        colliders[name] = (kind, parts, ratio)
+        colliders[name] = (kind, _to_object(world[name], scene.get_pose(name), offsets[name]), ratio)
     return cuts
 
 
@@ -511,10 +516,7 @@ def _extend_bases(colliders: dict[str, tuple[str, list[MeshData], float]], local
             continue
         from holousd.physics import convex_hull
 
-        points, faces = convex_hull(grown)
-        inverse = np.linalg.inv(pose.matrix())
-        points = (points - offsets[name]) @ inverse[:3, :3].T + inverse[:3, 3]
-        colliders[name] = (kind, [MeshData(points=points, faces=faces)], ratio)
+        colliders[name] = (kind, _to_object([convex_hull(grown)], pose, offsets[name]), ratio)
         world[name] = grown
         done.add(name)
     return done
@@ -656,9 +658,7 @@ def setup_physics(scene: SceneGraph, config: PhysicsSetupConfig | None = None,
                 world_parts = flattened
             if name not in base_cut and name not in top_cut:
                 continue
-            inverse = np.linalg.inv(pose.matrix())
-            parts = [MeshData(points=p @ inverse[:3, :3].T + inverse[:3, 3], faces=f) for p, f in world_parts]
-            colliders[name] = (kind, parts, ratio)
+            colliders[name] = (kind, _to_object(world_parts, pose), ratio)
     bg_world = None
     slabs: list[MeshData] = []  # world coordinates
     if background is not None and len(background.faces):
@@ -713,8 +713,7 @@ def setup_physics(scene: SceneGraph, config: PhysicsSetupConfig | None = None,
                 background = cleaned
     if background is not None and len(background.faces):
         if slabs:  # world -> background coordinates (the identity for a fitted room)
-            inverse = np.linalg.inv(scene.get_pose(BACKGROUND).matrix())
-            slabs = [MeshData(points=m.points @ inverse[:3, :3].T + inverse[:3, 3], faces=m.faces) for m in slabs]
+            slabs = _to_object([(m.points, m.faces) for m in slabs], scene.get_pose(BACKGROUND))
         if slabs:
             scene.set_collider(BACKGROUND, Collider(approximation="convexDecomposition", parts=slabs))
         else:
