@@ -101,7 +101,8 @@ def mesh_from_sdf(
     parts = mesh.split(only_watertight=False)
     components = len(parts)
     if components > 1:
-        volumes = [abs(p.volume) if p.is_watertight else p.area * voxel_size for p in parts]
+        with np.errstate(invalid="ignore", divide="ignore"):  # a flat sliver's centre of mass is 0 / 0
+            volumes = [abs(p.volume) if p.is_watertight else p.area * voxel_size for p in parts]
         mesh = parts[int(np.argmax(volumes))]
     if mesh.is_watertight and mesh.volume < 0:
         mesh.invert()
