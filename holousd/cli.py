@@ -12,6 +12,8 @@ import importlib
 import sys
 from collections.abc import Sequence
 
+from holousd._argtypes import HelpFormatter
+
 __all__ = ["build_parser", "main"]
 
 _COMMAND_MODULES = (
@@ -27,29 +29,11 @@ _NO_WARP_COMMANDS = frozenset({"info", "validate", "export", "example"})
 """Sub-commands that never run Warp (they skip importing it)."""
 
 
-class _HelpFormatter(argparse.RawDescriptionHelpFormatter):
-    """Show each option's default (where it has one worth saying) and keep the description's line breaks.
-
-    Left out: required options, options without a default (None), on/off flags (False), and options whose help
-    already says what the default is. A ``WxH`` size shows as ``160x120``.
-    """
-
-    def _get_help_string(self, action: argparse.Action) -> str:
-        text = action.help or ""
-        default = action.default
-        if (action.required or default is None or default is False or default is argparse.SUPPRESS
-                or "default" in text or "%(default)" in text):  # fmt: skip
-            return text
-        if action.metavar == "WxH" and isinstance(default, tuple) and len(default) == 2:
-            return f"{text} (default: {default[0]}x{default[1]})"
-        return f"{text} (default: %(default)s)"
-
-
 class _Parser(argparse.ArgumentParser):
     """ArgumentParser whose sub-command parsers show defaults in ``--help`` unless told otherwise."""
 
     def __init__(self, *args: object, **kwargs: object) -> None:
-        kwargs.setdefault("formatter_class", _HelpFormatter)
+        kwargs.setdefault("formatter_class", HelpFormatter)
         super().__init__(*args, **kwargs)
 
 
@@ -60,11 +44,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="holousd",
         description=(
-            "holousd turns a video of a static indoor scene into a simulation-ready, interactive USD scene graph:\n"
+            "holousd turns a video of a static indoor scene into a simulation-ready, interactive USD scene graph: "
             "watertight meshes, Gaussian-splat appearance, rigid-body physics and support relations per object."
         ),
         epilog="Run 'holousd COMMAND --help' for the options of a command.",
-        formatter_class=_HelpFormatter,
+        formatter_class=HelpFormatter,
     )
     parser.add_argument("--version", action="version", version=f"holousd {__version__}")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND", title="commands", parser_class=_Parser)

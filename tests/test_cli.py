@@ -24,14 +24,24 @@ def test_no_command_prints_help(capsys: pytest.CaptureFixture) -> None:
     assert "usage: holousd" in capsys.readouterr().out
 
 
-def test_subcommand_help_shows_real_defaults_only(capsys: pytest.CaptureFixture) -> None:
-    for command in ("reconstruct", "demo", "bench", "synth", "fit"):
+def test_subcommand_help_shows_real_defaults_only(capsys: pytest.CaptureFixture,
+                                                  monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
+    monkeypatch.setenv("COLUMNS", "80")
+    for command in ("stability", "bench", "bench-fit", "eval"):  # prose is wrapped to the terminal, % not doubled
+        with pytest.raises(SystemExit):
+            main([command, "--help"])
+        text = capsys.readouterr().out
+        assert max(len(line) for line in text.splitlines()) <= 80 and "%%" not in text, command
+    for command in ("reconstruct", "demo", "bench", "synth", "fit", "stability", "simulate"):
         with pytest.raises(SystemExit) as exit_info:
             main([command, "--help"])
         assert exit_info.value.code == 0
         text = " ".join(capsys.readouterr().out.split())  # argparse wraps lines
         assert "(default: None)" not in text and "(default: False)" not in text, command
-        assert "--seed SEED" in text and "(default: 0)" in text, command
+        if command not in ("stability", "simulate"):  # the physics commands take no seed
+            assert "--seed SEED" in text and "(default: 0)" in text, command
+        else:
+            assert "(default: 2.0)" in text, command
     with pytest.raises(SystemExit):  # the demo's capture size reads as a size, not as a Python tuple
         main(["demo", "--help"])
     assert "capture size (default: 160x120)" in " ".join(capsys.readouterr().out.split())

@@ -10,11 +10,10 @@ import json
 import sys
 from pathlib import Path
 
+from holousd._argtypes import HelpFormatter
 from holousd._warp import quiet_warp
 
 __all__ = ["add_commands"]
-
-_FORMATTER = argparse.ArgumentDefaultsHelpFormatter
 
 
 def add_commands(subparsers: argparse._SubParsersAction) -> None:
@@ -28,7 +27,7 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
         "every collider, no damping, 240 Hz) and report per object its largest translation and rotation and "
         "whether it stayed under 2 cm and 5 degrees. Works on any UsdPhysics scene; objects are named by prim "
         "path. Exit code 0 when the verdict was computed, 2 when the scene cannot be used.",
-        formatter_class=_FORMATTER,
+        formatter_class=HelpFormatter,
     )
     stab.add_argument("scene", type=Path, metavar="SCENE", help="scene file (.usda/.usdc/.usd)")
     stab.add_argument("--json", action="store_true", help="print JSON instead of a table")
@@ -53,7 +52,7 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
         "optionally pushing objects at t = 0, print how far each moved, and with --out write the trajectories "
         "as translate/orient time samples into a new layer that sublayers the scene (open it in any USD "
         "viewer to play the motion).",
-        formatter_class=_FORMATTER,
+        formatter_class=HelpFormatter,
     )
     sim.add_argument("scene", type=Path, metavar="SCENE", help="scene file (.usda/.usdc/.usd)")
     sim.add_argument("--seconds", type=float, default=2.0, help="simulated time, s")
@@ -78,7 +77,7 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
         description="Measure seconds of wall time per simulated second for 5, 20 and 50 objects with convex-hull, "
         "decomposition and triangle-mesh colliders, and the time of one object-on-its-support-chain check; "
         "write bench_physics.json into DIR.",
-        formatter_class=_FORMATTER,
+        formatter_class=HelpFormatter,
     )
     bench.add_argument("--out", type=Path, metavar="DIR", required=True, help="folder for bench_physics.json")
     bench.add_argument("--counts", default="5,20,50", help="comma-separated object counts to measure")

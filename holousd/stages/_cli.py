@@ -49,7 +49,7 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
         "bench-fit",
         help="benchmark s1_fit geometry on a synth suite: accuracy against wall time per preset",
         description="Generate (or reuse) a synth suite, fit every scene with each preset, with and without the "
-        "depth input, and report OR%%, visible-surface F-score at 5 cm and Chamfer distance against the ground "
+        "depth input, and report OR%, visible-surface F-score at 5 cm and Chamfer distance against the ground "
         "truth next to wall time and peak memory. Writes OUT/bench_fit.json and the chart OUT/bench_fit.png.",
     )
     bench.add_argument("--suite", choices=("demo", "bench", "hard"), default="bench", help="synth suite")

@@ -45,7 +45,7 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
         "eval",
         help="evaluate a reconstruction against synth ground truth (geometry, render, physics, cost)",
         description="Geometry (Chamfer cm, F-score at 5 cm, normal consistency), render PSNR/SSIM at held-out "
-        "frames, OR%%, Stable%% and penetration volume, and cost per stage.",
+        "frames, OR%, Stable% and penetration volume, and cost per stage.",
     )
     ev.add_argument("recon", type=Path, metavar="RECON_DIR", help="reconstruct output folder or a scene file")
     ev.add_argument("--gt", type=Path, required=True, metavar="GT_DIR", help="synth scene folder or its gt/ folder")
@@ -58,8 +58,8 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
         "bench",
         help="reconstruct + eval every scene of a synth suite per preset; JSON, charts, failure-mode table",
         description="Writes OUT/bench.json (every evaluation, with the command line and the machine), OUT/bench.png "
-        "(F1, Chamfer, PSNR, Stable%% against wall time, one point per scene and preset), OUT/summary.md (means per "
-        "preset) and, for the hard suite, OUT/hard_stable.md (Stable%% per failure mode). With --table, only prints "
+        "(F1, Chamfer, PSNR, Stable% against wall time, one point per scene and preset), OUT/summary.md (means per "
+        "preset) and, for the hard suite, OUT/hard_stable.md (Stable% per failure mode). With --table, only prints "
         "the summary table of existing bench.json files (the README's results table is made this way).",
     )
     bench.add_argument("--suite", choices=("bench", "hard", "demo"), default="bench", help="synth suite")
