@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from holousd._errors import HolousdError
+from holousd._sampling import evenly_spaced
 from holousd.usd._types import MeshData
 
 __all__ = [
@@ -213,7 +214,7 @@ def evaluate_fit(
             pose = scene.get_pose(info.name)
             pred_meshes[info.instance_id] = MeshData(points=pose.apply(mesh.points), faces=mesh.faces)
     obs = load(gt_dir)
-    pick = np.unique(np.linspace(0, len(obs) - 1, min(frames, len(obs))).round().astype(int))
+    pick = evenly_spaced(len(obs), frames)
     depths = [obs.depth(int(i)) for i in pick]
 
     def area(m: MeshData) -> float:

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from holousd._atomic import atomic_path
+from holousd._sampling import evenly_spaced
 
 __all__ = ["DemoConfig", "bar_chart", "mesh_view", "reference_runs", "run_demo", "write_report"]
 
@@ -189,7 +190,7 @@ def write_report(path: str | os.PathLike[str], *, evaluation: dict[str, Any], sc
     from holousd.usd import SceneGraph
 
     obs = load(gt_dir)
-    pick = np.unique(np.linspace(0, len(obs) - 1, min(frames, len(obs))).round().astype(int))
+    pick = evenly_spaced(len(obs), frames)
     inputs = [_png_uri(np.asarray(obs.rgb(int(i)))[..., :3]) for i in pick]
     scene = SceneGraph.open(scene_file)
     novel = meshes = None

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from holousd._errors import HolousdError
+from holousd._sampling import evenly_spaced
 
 __all__ = ["EvalConfig", "ObjectRow", "SceneEvaluation", "evaluate_scene", "resolve_gt", "resolve_scene"]
 
@@ -169,10 +170,7 @@ def _render_metrics(scene: Any, gt_dir: Path, config: EvalConfig, notes: list[st
         return {"psnr": None, "ssim": None}
     obs = load(gt_dir)
     frames = holdout_frames(len(obs)) or list(range(len(obs)))
-    if len(frames) > config.render_frames:
-        frames = [
-            frames[i] for i in np.unique(np.linspace(0, len(frames) - 1, config.render_frames).round().astype(int))
-        ]
+    frames = [frames[i] for i in evenly_spaced(len(frames), config.render_frames)]
     p, s = [], []
     for i in frames:
         cam = Camera.from_intrinsics(obs.intrinsics[i], obs.poses[i], obs.width, obs.height)

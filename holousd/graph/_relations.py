@@ -15,6 +15,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from holousd._sampling import evenly_spaced
+
 __all__ = ["RelationConfig", "Relations", "infer_relations", "push_out_of", "settle_offsets"]
 
 BACKGROUND = "background"
@@ -82,9 +84,7 @@ def _trimesh(mesh: Mesh):  # noqa: ANN202
 
 def _contact_points(points: np.ndarray, config: RelationConfig) -> np.ndarray:
     low = points[points[:, 2] <= points[:, 2].min() + config.bottom_band]  # [K, 3]
-    if len(low) > config.max_rays:
-        low = low[np.unique(np.linspace(0, len(low) - 1, config.max_rays).round().astype(int))]
-    return low
+    return low[evenly_spaced(len(low), config.max_rays)]
 
 
 def infer_relations(meshes: dict[str, Mesh], config: RelationConfig | None = None) -> Relations:
@@ -180,8 +180,8 @@ def _surface_distance(tm, points: np.ndarray) -> float:  # noqa: ANN001
 
 
 def settle_offsets(meshes: dict[str, Mesh], background: Mesh | None, relations: Relations,
-                   config: RelationConfig | None = None, *, clearance: float = 0.001, max_offset: float = 0.06,
-                   supports: dict[str, Mesh] | None = None) -> dict[str, float]:  # fmt: skip
+                   config: RelationConfig | None = None, *, clearance: float = 0.001,
+                   max_offset: float = 0.06) -> dict[str, float]:  # fmt: skip
     """Vertical shifts that set each object onto its support parent (the state adjustment of s2, z only).
 
     Parents are settled before their children (breadth-first from the background) and children move with
@@ -190,14 +190,13 @@ def settle_offsets(meshes: dict[str, Mesh], background: Mesh | None, relations: 
     Fitted meshes typically sink a voxel or two into their support, which a simulator resolves violently.
 
     Args:
-        meshes: Object name -> world ``(points [N, 3], faces [F, 3])`` before the shift.
+        meshes: Object name -> world ``(points [N, 3], faces [F, 3])`` before the shift; also the surface its
+            children are set onto (pass colliders to set children on what the simulator will see).
         background: World mesh of the background (parent 'background'), or None (then such objects stay).
         relations: The support tree from :func:`infer_relations`.
         config: Ray settings (``bottom_band``, ``max_rays``).
         clearance: Gap left between an object's lowest point and its parent's surface, metres.
         max_offset: Larger shifts are not applied (the parent is probably wrong), metres.
-        supports: Surfaces to set children onto, by parent name, world coordinates before the shift (e.g. the
-            parents' colliders, which fill hollows a mesh has); default the parents' meshes.
 
     Returns:
         Object name -> total z shift, metres (its own plus its ancestors').
@@ -206,7 +205,7 @@ def settle_offsets(meshes: dict[str, Mesh], background: Mesh | None, relations: 
 
     config = config or RelationConfig()
     shift: dict[str, float] = {}
-    surfaces: dict[str, Mesh] = {**meshes, **(supports or {})}
+    surfaces: dict[str, Mesh] = dict(meshes)
     if background is not None and len(background[1]):
         surfaces[BACKGROUND] = background
     order: list[str] = []
@@ -258,8 +257,7 @@ def push_out_of(mesh: Mesh, solid: Mesh, *, samples: int = 400, clearance: float
     if not solid_tm.is_watertight:
         return np.zeros(3)
     pts = np.asarray(mesh[0], float)
-    if len(pts) > samples:
-        pts = pts[np.unique(np.linspace(0, len(pts) - 1, samples).round().astype(int))]
+    pts = pts[evenly_spaced(len(pts), samples)]
     lo, hi = solid_tm.bounds
     pts = pts[np.all((pts >= lo) & (pts <= hi), axis=1)]
     if len(pts) == 0:

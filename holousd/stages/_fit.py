@@ -37,6 +37,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from holousd._errors import HolousdError
+from holousd._sampling import evenly_spaced
 from holousd._torch_threads import torch_threads
 from holousd.geometry._grid import (
     Views,
@@ -228,14 +229,8 @@ class _Frames:
     depth_raw: np.ndarray | None  # [N, H, W] float32 as given (metric or relative)
 
 
-def _pick(n: int, count: int) -> np.ndarray:
-    if n <= count:
-        return np.arange(n)
-    return np.unique(np.linspace(0, n - 1, count).round().astype(int))
-
-
 def _load_frames(obs: Observations, count: int, use_depth: bool, use_normals: bool) -> _Frames:
-    idx = _pick(len(obs), count)
+    idx = evenly_spaced(len(obs), count)
     labels = np.empty((len(idx), obs.height, obs.width), np.int32)
     rgb = np.empty((len(idx), obs.height, obs.width, 3), np.uint8)
     depth = np.empty((len(idx), obs.height, obs.width), np.float32) if use_depth else None
@@ -730,7 +725,7 @@ def fit(scene: SceneGraph, obs: Observations, config: FitConfig | None = None,
     metric = use_depth and obs.depth_kind == "metric"
     frames = _load_frames(obs, max(config.render_frames, config.fusion_frames), use_depth, obs.has_normals)
     views = frames.views
-    fusion = _pick(len(views), config.fusion_frames)
+    fusion = evenly_spaced(len(views), config.fusion_frames)
     timings["load"] = time.perf_counter() - start
 
     t0 = time.perf_counter()

@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from holousd._errors import HolousdError
+from holousd._sampling import evenly_spaced
 from holousd._torch_threads import torch_threads
 from holousd.stages import _fit, _observe
 from holousd.stages import _physics_setup as _physics
@@ -328,9 +329,7 @@ def _write_scene_file(out: Path, top_layer: Path) -> Path:
 def _appearance_frames(obs: Any, config: AppearanceStageConfig) -> list[tuple]:
     held = set(holdout_frames(len(obs)))
     train = [i for i in range(len(obs)) if i not in held] or list(range(len(obs)))
-    if len(train) > config.frames:
-        pick = np.unique(np.linspace(0, len(train) - 1, config.frames).round().astype(int))
-        train = [train[i] for i in pick]
+    train = [train[i] for i in evenly_spaced(len(train), config.frames)]
     return [(np.asarray(obs.rgb(i))[..., :3], obs.intrinsics[i], obs.poses[i], obs.mask(i)) for i in train]
 
 
