@@ -3,9 +3,17 @@
 from __future__ import annotations
 
 import argparse
+import json
+import sys
 import textwrap
 
-__all__ = ["HelpFormatter", "positive_int", "resolution"]
+__all__ = ["HelpFormatter", "emit_json", "positive_int", "resolution"]
+
+
+def emit_json(args: argparse.Namespace, data: object) -> None:
+    """Print a ``--json`` command's result: to the real stdout the CLI set aside (``args.json_out``), where
+    nothing else lands while the command runs (see ``holousd.cli``); to ``sys.stdout`` otherwise."""
+    print(json.dumps(data, indent=2), file=getattr(args, "json_out", None) or sys.stdout)
 
 
 class HelpFormatter(argparse.HelpFormatter):

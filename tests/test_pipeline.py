@@ -274,3 +274,42 @@ def test_threads_reach_fit_and_appearance_and_do_not_change_the_hash() -> None:
     for name in ("fit", "appearance"):
         one, default = getattr(config, name), getattr(plain, name)
         assert _pipeline._stage_hash("m", one, "") == _pipeline._stage_hash("m", default, "")
+
+
+def _layer_without_run_records(path: Path) -> str:
+    layer = Sdf.Layer.OpenAsAnonymous(str(path))
+    data = dict(layer.customLayerData)
+    holo = dict(data.get("holousd", {}))
+    if "stage" in holo:
+        holo["stage"] = {k: v for k, v in dict(holo["stage"]).items() if k not in ("wall_s", "peak_mem_mb", "run_id")}
+    data["holousd"] = holo
+    layer.customLayerData = data
+    return layer.ExportToString()
+
+
+def test_same_capture_and_settings_give_the_same_scene_from_a_relative_out(
+        recon: tuple[Path, _pipeline.PipelineResult], capture: Path, tmp_path: Path,
+        monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
+    first, result = recon
+    monkeypatch.chdir(tmp_path)  # the README's form: a relative --out, here one that climbs out of the working folder
+    relative = Path("..") / f"{first.name}_again"  # beside the first run: layers hold image paths relative to them
+    again = reconstruct(capture, relative, tiny_config(), log=lambda _: None)
+    second = (tmp_path / relative).resolve()
+    assert again.scene_file == second / "scene.usda" and (second / "30_appearance.usda").is_file()
+    assert not list(second.rglob(f"{relative.name}"))
+    assert [s.input_hash for s in again.stages] == [s.input_hash for s in result.stages]  # content-only hashes
+    files = sorted(p.relative_to(first) for p in first.rglob("*") if p.is_file())
+    assert files == sorted(p.relative_to(second) for p in second.rglob("*") if p.is_file())
+    for rel in files:
+        if rel.suffix == ".usda":
+            assert _layer_without_run_records(first / rel) == _layer_without_run_records(second / rel), rel
+        else:
+            assert (first / rel).read_bytes() == (second / rel).read_bytes(), rel
+
+
+def test_observed_fraction_is_measured(recon: tuple[Path, _pipeline.PipelineResult]) -> None:
+    scene = SceneGraph.open(recon[0] / "scene.usda")
+    fractions = {n.name: n.observed_fraction for n in scene.nodes()}
+    objects = [v for k, v in fractions.items() if k != "background"]
+    assert all(0.05 < v < 0.95 for v in objects), fractions  # seen from one side: never all, never nothing
+    assert 0 < fractions["background"] <= 1

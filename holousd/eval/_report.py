@@ -279,12 +279,13 @@ def run_demo(out: str | os.PathLike[str], config: DemoConfig | None = None) -> P
     Returns:
         The report file.
     """
+    from holousd._paths import output_folder
     from holousd.eval._scene_eval import EvalConfig, evaluate_scene
     from holousd.stages._pipeline import preset, reconstruct
     from holousd.synth import SynthConfig, generate_suite
 
     config = config or DemoConfig()
-    out = Path(out)
+    out = output_folder(out, "demo folder")
     start = time.perf_counter()
 
     def say(line: str) -> None:

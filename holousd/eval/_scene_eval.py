@@ -216,8 +216,8 @@ def evaluate_scene(recon: str | os.PathLike[str], gt: str | os.PathLike[str],
 
     config = config or EvalConfig()
     say = config.log or (lambda _line: None)
+    scene_file = resolve_scene(recon)  # the argument named first is checked first
     gt_dir = resolve_gt(gt)
-    scene_file = resolve_scene(recon)
     notes: list[str] = []
     graph = json.loads((gt_dir / "gt" / "graph.json").read_text())
     gt_objects = {int(n["instance_id"]): n for n in graph["nodes"] if n.get("role") == "object"}

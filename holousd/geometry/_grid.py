@@ -26,6 +26,7 @@ __all__ = [
     "box_sdf",
     "carve_hull",
     "fuse_tsdf",
+    "observed_fraction",
     "sample_grid",
     "signed_distance_from_occupancy",
 ]
@@ -285,3 +286,41 @@ def signed_distance_from_occupancy(occupied: np.ndarray, voxel_size: float) -> n
     outside = distance_transform_edt(~occupied)
     inside = distance_transform_edt(occupied)
     return ((outside - inside + np.where(occupied, 0.5, -0.5)) * voxel_size).astype(np.float32)
+
+
+def observed_fraction(points: np.ndarray, faces: np.ndarray, views: Views, instance_id: int,
+                      depth_tolerance: float) -> float:  # fmt: skip
+    """Fraction [0, 1] of a mesh's surface area that some view saw: the area share of faces whose centre, in at
+    least one view, faces the camera, projects into the image onto a pixel labelled ``instance_id`` and, where
+    the view has metric depth at that pixel, lies within ``depth_tolerance`` of it (not hidden behind the
+    observed surface).
+
+    Args:
+        points: [V, 3] mesh vertices in world coordinates, metres.
+        faces: [F, 3] triangle vertex indices.
+        views: The observing views (labels; depth optional).
+        instance_id: The mesh's instance id in ``views.labels``.
+        depth_tolerance: Largest difference between a face centre's camera depth and the observed depth, metres.
+    """
+    points = np.asarray(points, dtype=np.float32)
+    faces = np.asarray(faces, dtype=np.int64)
+    if len(faces) == 0:
+        return 0.0
+    tri = points[faces]  # [F, 3, 3]
+    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])  # [F, 3]
+    area = 0.5 * np.linalg.norm(cross, axis=1)  # [F]
+    total = float(area.sum())
+    if total <= 0:
+        return 0.0
+    centre = tri.mean(axis=1)  # [F, 3]
+    seen = np.zeros(len(faces), dtype=bool)
+    for i in range(len(views)):
+        row, col, z, valid = views.project(i, centre)
+        to_camera = views.poses[i][:3, 3].astype(np.float32) - centre
+        valid &= np.einsum("ij,ij->i", cross, to_camera) > 0
+        valid &= views.labels[i][row, col] == instance_id
+        if views.depth is not None:
+            observed = views.depth[i][row, col]
+            valid &= (observed <= 0) | (np.abs(observed - z) <= depth_tolerance)
+        seen |= valid
+    return float(np.clip(area[seen].sum() / total, 0.0, 1.0))

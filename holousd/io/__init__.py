@@ -7,10 +7,11 @@ Formats (FORMAT.md): ``native`` (``observations.json`` + per-frame files), ``ner
 
 from holousd.io._formats import FORMATS, detect_format, load, write
 from holousd.io._monosdf import decompose_projection
-from holousd.io._observations import DEPTH_KINDS, Frame, LazyArray, Observations, ObservationsError
+from holousd.io._observations import DEPTH_KINDS, CaptureCheck, Frame, LazyArray, Observations, ObservationsError
 
 __all__ = [
     "DEPTH_KINDS",
+    "CaptureCheck",
     "FORMATS",
     "Frame",
     "LazyArray",

@@ -321,6 +321,12 @@ def read_video(path: Path) -> Observations:
     path = Path(path)
     folder = path.parent if path.is_file() else path
     manifest = folder / VIDEO_MANIFEST
+    if path.is_file() and not manifest.is_file():
+        raise ObservationsError(
+            f"{path}: a video needs its side file {VIDEO_MANIFEST} beside it (camera intrinsics and poses per frame, "
+            "instance mask files): holousd does not estimate poses or masks from the video alone; write them as "
+            "holousd/io/FORMAT.md describes (video layout)"
+        )
     data = _read_manifest(manifest, _VIDEO_TAG)
     video = folder / data["video"] if "video" in data else path if path.is_file() else None
     if video is None:

@@ -28,7 +28,7 @@ import numpy as np
 
 from holousd._errors import HolousdError
 
-__all__ = ["DEPTH_KINDS", "Frame", "LazyArray", "Observations", "ObservationsError"]
+__all__ = ["DEPTH_KINDS", "CaptureCheck", "Frame", "LazyArray", "Observations", "ObservationsError"]
 
 DEPTH_KINDS = ("metric", "relative")
 """Allowed values of ``Observations.depth_kind``."""
@@ -37,8 +37,66 @@ _ROTATION_TOL = 1e-3
 """Largest deviation of R^T R from I (and of det R from 1) accepted for a rigid pose."""
 
 
+_FAR_PLANE_MIN_SHARE = 1e-3
+"""Share of all depth pixels that must sit at the capture's maximum depth for it to count as a far plane."""
+_FAR_PLANE_GAP = 0.9
+"""The deepest other depth value must lie below this fraction of the maximum (a far plane stands apart)."""
+
+
 class ObservationsError(HolousdError):
     """Observations are missing, unreadable or inconsistent (message names the file or frame and the fix)."""
+
+
+@dataclass(kw_only=True)
+class CaptureCheck:
+    """What :meth:`Observations.validate` found besides errors: the depth pixels that carry no measurement.
+
+    Depth pixels that are 0 (no value), NaN / infinite, or at the capture's far plane (a renderer's or sensor's
+    constant maximum written where nothing was hit) are not measurements. They are counted here and ignored by
+    :meth:`Observations.with_valid_depth`; a capture with no valid depth pixel at all is fitted from its masks.
+    """
+
+    frames: int = 0
+    """Frames checked."""
+    depth_pixels: int = 0
+    """Depth pixels over all frames (0 without depth or when pixels were not read)."""
+    zero_depth: int = 0
+    """Pixels with depth 0 (no value)."""
+    nonfinite_depth: int = 0
+    """Pixels with NaN or infinite depth."""
+    far_plane_depth: int = 0
+    """Pixels at the far plane (see :attr:`far_plane_m`)."""
+    far_plane_m: float | None = None
+    """Depth of the detected far plane (the constant maximum), or None when there is none."""
+
+    @property
+    def invalid_depth(self) -> int:
+        """Depth pixels that carry no measurement (zero, non-finite or far plane)."""
+        return self.zero_depth + self.nonfinite_depth + self.far_plane_depth
+
+    @property
+    def valid_depth(self) -> int:
+        """Depth pixels that carry a measurement."""
+        return self.depth_pixels - self.invalid_depth
+
+    @property
+    def warnings(self) -> list[str]:
+        """One line per finding worth telling the user (empty when the depth is clean or absent)."""
+        if self.depth_pixels == 0:
+            return []
+        if self.valid_depth <= 0:
+            return [f"depth: none of the {self.depth_pixels} depth pixels holds a measurement (all zero, NaN or at a "
+                    "far plane); fitting from the instance masks alone (visual hull, far less accurate)"]  # fmt: skip
+        if self.nonfinite_depth == 0 and self.far_plane_depth == 0:
+            return []
+        parts = []
+        if self.far_plane_depth:
+            parts.append(f"{self.far_plane_depth} at the far plane ({self.far_plane_m:g} m, nothing was hit there)")
+        if self.nonfinite_depth:
+            parts.append(f"{self.nonfinite_depth} NaN or infinite")
+        share = 100.0 * (self.far_plane_depth + self.nonfinite_depth) / self.depth_pixels
+        return [f"depth: ignoring {' and '.join(parts)} depth pixels ({share:.1f}% of {self.depth_pixels}); "
+                "write 0 where a pixel has no depth to silence this"]  # fmt: skip
 
 
 class LazyArray:
@@ -315,18 +373,23 @@ class Observations:
         base = str(source) if source is not None else "<observations>"
         return base if i is None else f"{base}: frame {i} (id {self.frame_ids[i]!r})"
 
-    def validate(self, *, pixels: bool = True) -> None:
+    def validate(self, *, pixels: bool = True) -> CaptureCheck:
         """Check the observations and raise :class:`ObservationsError` at the first problem.
 
         Checks: at least one frame; array shapes; unique frame ids; finite intrinsics with positive focal
         lengths and the principal point inside the image; finite, rigid camera-to-world poses (orthonormal
         rotation with determinant +1, last row 0 0 0 1). With ``pixels`` (default) every frame is also read:
         files exist and decode, every image has the declared size, colour frames are not empty (a single
-        colour), masks are integer images, depth is finite and non-negative, normals are finite unit vectors,
-        and the instance ids seen in the masks are exactly 1..N (or exactly the ids of ``instance_names``).
+        colour), masks are integer images, depth has the image's size and metric depth is not negative, normals
+        are finite unit vectors, and the instance ids seen in the masks are exactly 1..N (or exactly the ids of
+        ``instance_names``). Depth pixels without a measurement (0, NaN / infinite, a far plane) are no error:
+        they are counted in the returned :class:`CaptureCheck` (pass it to :meth:`with_valid_depth`).
 
         Args:
             pixels: Also read and check every frame (slow for long captures; one frame in memory at a time).
+
+        Returns:
+            Counts of the depth pixels that carry no measurement (all zero when ``pixels`` is False).
         """
         n = len(self)
         where = self._where()
@@ -349,8 +412,41 @@ class Observations:
             raise ObservationsError(f"{where}: duplicate frame ids {dup}; frame ids must be unique")
         for i in range(n):
             self._check_camera(i)
+        check = CaptureCheck(frames=n)
         if pixels:
-            self._check_pixels()
+            self._check_pixels(check)
+        return check
+
+    def with_valid_depth(self, check: CaptureCheck) -> Observations:
+        """These observations with the depth pixels ``check`` found invalid set to 0 (no value) as frames load;
+        without depth when no pixel holds a measurement (the fit then carves the masks)."""
+        if self._depth is None or check.depth_pixels == 0:
+            return self
+        if check.valid_depth <= 0:
+            return self._replace(depth=None)
+        far = check.far_plane_m
+
+        def clean(lazy: LazyArray) -> LazyArray:
+            def read() -> np.ndarray:
+                depth = np.asarray(lazy.load(), dtype=np.float32)
+                bad = ~np.isfinite(depth)
+                if far is not None:
+                    bad |= depth >= np.float32(far) * np.float32(1.0 - 1e-6)
+                return np.where(bad, np.float32(0.0), depth) if bad.any() else depth
+
+            return LazyArray(read, lazy.source)
+
+        return self._replace(depth=[clean(d) for d in self._depth])
+
+    def _replace(self, **changes: object) -> Observations:
+        fields = dict(rgb=self._rgb, intrinsics=self.intrinsics, poses=self.poses, width=self.width,
+                      height=self.height, masks=self._masks, depth=self._depth, normals=self._normals,
+                      frame_ids=self.frame_ids, depth_kind=self.depth_kind, instance_names=self.instance_names,
+                      root=self.root, camera_file=self.camera_file, metadata=self.metadata)  # fmt: skip
+        fields.update(changes)
+        if fields["depth"] is None:
+            fields["depth_kind"] = None
+        return Observations(**fields)  # type: ignore[arg-type]
 
     def _check_camera(self, i: int) -> None:
         where = self._where(i)
@@ -387,8 +483,11 @@ class Observations:
                 "right-handed OpenCV camera convention"
             )
 
-    def _check_pixels(self) -> None:
+    def _check_pixels(self, check: CaptureCheck) -> None:
         seen: set[int] = set()
+        pixels: dict[int, int] = {}  # instance id -> mask pixels over all frames
+        first: dict[int, int] = {}  # instance id -> first frame it appears in
+        tops: list[tuple[float, int, float]] = []  # per depth frame: (max, pixels at max, deepest value below it)
         size = (self.height, self.width)
         for i in range(len(self)):
             rgb = self.rgb(i)
@@ -420,7 +519,11 @@ class Observations:
                     raise ObservationsError(f"{where}: mask has dtype {mask.dtype}; instance ids must be integers")
                 if mask.size and int(mask.min()) < 0:
                     raise ObservationsError(f"{where}: mask has negative ids; use 0 for background and 1..N")
-                seen.update(int(v) for v in np.unique(mask))
+                ids, counts = np.unique(mask, return_counts=True)
+                for k, c in zip(ids.tolist(), counts.tolist(), strict=True):
+                    seen.add(int(k))
+                    pixels[int(k)] = pixels.get(int(k), 0) + int(c)
+                    first.setdefault(int(k), i)
             if self._depth is not None:
                 depth = self.depth(i)
                 assert depth is not None
@@ -429,10 +532,23 @@ class Observations:
                     raise ObservationsError(
                         f"{where}: depth has shape {list(depth.shape)}, expected [{self.height}, {self.width}]"
                     )
-                if not np.all(np.isfinite(depth)):
-                    raise ObservationsError(f"{where}: depth contains NaN or infinite values; write 0 where unknown")
-                if self.depth_kind == "metric" and depth.size and float(depth.min()) < 0:
-                    raise ObservationsError(f"{where}: metric depth has negative values; write 0 where unknown")
+                if depth.dtype.kind not in "fiu":
+                    raise ObservationsError(f"{where}: depth has dtype {depth.dtype}; depth must be numbers")
+                finite = np.isfinite(depth)
+                values = depth[finite & (depth != 0)]
+                if self.depth_kind == "metric" and values.size and float(values.min()) < 0:
+                    raise ObservationsError(
+                        f"{where}: metric depth has negative values (min {float(values.min()):.3g}); depth is z along "
+                        "the OpenCV optical axis, positive in front of the camera: flip its sign, write 0 where unknown"
+                    )
+                check.depth_pixels += int(depth.size)
+                check.nonfinite_depth += int(depth.size - finite.sum())
+                check.zero_depth += int((finite & (depth == 0)).sum())
+                if values.size:
+                    top = float(values.max())
+                    at_top = values >= top * (1.0 - 1e-6)
+                    below = values[~at_top]
+                    tops.append((top, int(at_top.sum()), float(below.max()) if below.size else 0.0))
             if self._normals is not None:
                 normal = self.normal(i)
                 assert normal is not None
@@ -450,9 +566,12 @@ class Observations:
                         f"{where}: {int(bad.sum())} normals are not unit length; normalise them (or (0, 0, 0) = none)"
                     )
         if self._masks is not None:
-            self._check_instance_ids(seen - {0})
+            self._check_instance_ids(seen - {0}, pixels, first)
+        if tops and self.depth_kind == "metric":
+            _find_far_plane(tops, check)
 
-    def _check_instance_ids(self, seen: set[int]) -> None:
+
+    def _check_instance_ids(self, seen: set[int], pixels: dict[int, int], first: dict[int, int]) -> None:
         where = self._where()
         if self.instance_names is not None:
             declared = set(self.instance_names) - {0}
@@ -464,10 +583,13 @@ class Observations:
                     "mask; remove them from the instance list or fix the masks"
                 )
             unknown = sorted(seen - declared)
-            if unknown:
+            if unknown:  # the rule (FORMAT.md): a declared instance list is complete; nothing is guessed
+                k = unknown[0]
+                more = f" (and ids {unknown[1:6]})" if len(unknown) > 1 else ""
                 raise ObservationsError(
-                    f"{where}: masks contain instance ids {unknown[:5]} that are not declared; add them to the "
-                    "instance list or fix the masks"
+                    f"{self._where(first[k], 'mask')}: instance id {k}{more} is not in the capture's instance list "
+                    f"({pixels[k]} pixels over the masks); add it to the instance list or set those mask pixels to "
+                    "0 (background)"
                 )
             return
         if seen:
@@ -477,3 +599,15 @@ class Observations:
                     f"{where}: instance ids {never[:5]} never appear in any mask (ids must be 1..{max(seen)} with "
                     "no gaps); renumber the masks"
                 )
+
+
+def _find_far_plane(tops: list[tuple[float, int, float]], check: CaptureCheck) -> None:
+    """A far plane is one constant maximum depth shared by many pixels and standing well apart from every
+    other depth value of the capture (renderers write it where a ray hit nothing; sensors where out of range)."""
+    far = max(t[0] for t in tops)
+    same = [t for t in tops if t[0] >= far * (1.0 - 1e-6)]
+    count = sum(t[1] for t in same)
+    deepest_other = max([t[2] for t in same] + [t[0] for t in tops if t[0] < far * (1.0 - 1e-6)])
+    if count >= max(16, _FAR_PLANE_MIN_SHARE * check.depth_pixels) and deepest_other < _FAR_PLANE_GAP * far:
+        check.far_plane_m = far
+        check.far_plane_depth = count

@@ -6,11 +6,10 @@ Heavy imports (warp, newton, mujoco) happen inside the handlers, so registering 
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
-from holousd._argtypes import HelpFormatter
+from holousd._argtypes import HelpFormatter, emit_json
 from holousd._warp import quiet_warp
 
 __all__ = ["add_commands"]
@@ -128,7 +127,7 @@ def _stability(args: argparse.Namespace) -> int:
     if alone is not None:
         data["alone"] = alone.to_dict()
     if args.json:
-        print(json.dumps(data, indent=2))
+        emit_json(args, data)
         return 0
     rows = [("object", "translation_m", "rotation_deg", "stable")]
     rows += [
@@ -201,12 +200,8 @@ def _simulate(args: argparse.Namespace) -> int:
         for p in traj.positions
     ]
     if args.json:
-        print(
-            json.dumps(
-                {"seconds": float(traj.times[-1]), "solver": traj.solver, "layer": written, "objects": summary},
-                indent=2,
-            )
-        )
+        emit_json(args, {"seconds": float(traj.times[-1]), "solver": traj.solver, "layer": written,
+                         "objects": summary})  # fmt: skip
         return 0
     rows = [("object", "translation_m", "rotation_deg")]
     rows += [(o["name"], f"{o['translation_m']:.4f}", f"{o['rotation_deg']:.2f}") for o in summary]

@@ -11,11 +11,14 @@ import os
 import warnings
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from pxr import Gf, Sdf, Tf, Usd, UsdGeom, UsdPhysics, UsdShade
 
+from holousd._errors import SceneError
 from holousd.usd import read_mesh
+from holousd.usd._layers import open_layer_stack, usd_error_text
 
 from ._errors import PhysicsInputError
 
@@ -99,11 +102,19 @@ def open_stage(source: str | os.PathLike[str] | Usd.Stage) -> Usd.Stage:
         path = os.fspath(source)
         if not os.path.isfile(path):
             raise PhysicsInputError(f"{path}: no such file; pass the path of a .usd/.usda/.usdc scene")
+        suffix = os.path.splitext(path)[1]
+        if Sdf.FileFormat.FindByExtension(suffix.lstrip(".")) is None:
+            raise PhysicsInputError(f"{path}: not a USD file (extension {suffix!r}); give a .usda, .usdc, .usd or "
+                                    ".usdz scene")  # fmt: skip
         try:
+            layers = open_layer_stack(Path(path))  # a missing sublayer is an error, not a warning and a gap
             stage = Usd.Stage.Open(path, Usd.Stage.LoadAll)
+            del layers
+        except SceneError as exc:
+            raise PhysicsInputError(str(exc)) from exc
         except Tf.ErrorException as exc:
-            first = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
-            raise PhysicsInputError(f"{path}: cannot be opened as USD ({first}); check the file is valid USD") from exc
+            raise PhysicsInputError(f"{path}: cannot be opened as USD ({usd_error_text(exc)}); check the file is "
+                                    "valid USD") from exc
         if stage is None:
             raise PhysicsInputError(f"{path}: cannot be opened as USD; check the file is valid USD")
     label = stage_label(stage)

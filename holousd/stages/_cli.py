@@ -92,25 +92,25 @@ def drop_depth(obs: Any) -> Any:
 def run_fit(input_path: Path, out: Path, preset: str, *, seed: int = 0, iterations: int | None = None,
             use_depth: bool = True, progress: bool = True, threads: int | None = None) -> dict[str, Any]:  # fmt: skip
     """Load a capture, run s0_observe and s1_fit into ``out`` and return a JSON-ready report."""
+    from holousd._atomic import folder_transaction
+    from holousd._paths import output_folder
     from holousd.io import load
     from holousd.stages import _fit, _observe
+    from holousd.stages._pipeline import OUTPUT_PATTERNS, checked
 
     start = time.perf_counter()
+    out = output_folder(out, "--out folder", create=False)
     obs = load(input_path)
-    if not obs.has_masks:
-        from holousd._errors import HolousdError
-
-        raise HolousdError(
-            f"{input_path}: the capture has no instance masks; fitting needs one integer mask per frame "
-            "(0 = background, 1..N objects): add masks/ (native) or instance_mask/ (nerfstudio) next to the images"
-        )
     if not use_depth:
         obs = drop_depth(obs)
     config = replace(_fit.PRESETS[preset], seed=seed, progress=progress, threads=threads)
     if iterations is not None:
         config = replace(config, iterations=iterations)
-    scene = _observe.run(obs, out)
-    result = _fit.fit(scene, obs, config)
+    obs = checked(obs, lambda line: print(line, file=sys.stderr, flush=True))
+    out.mkdir(parents=True, exist_ok=True)
+    with folder_transaction(out, OUTPUT_PATTERNS):
+        scene = _observe.run(obs, out)
+        result = _fit.fit(scene, obs, config)
     wall = time.perf_counter() - start
     return {
         "input": str(input_path),

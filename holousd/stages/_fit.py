@@ -45,6 +45,7 @@ from holousd.geometry._grid import (
     box_sdf,
     carve_hull,
     fuse_tsdf,
+    observed_fraction,
     sample_grid,
     signed_distance_from_occupancy,
 )
@@ -191,6 +192,8 @@ class ObjectFit:
     """The written mesh is watertight."""
     fallback: str = ""
     """How the mesh was made when marching cubes failed ('' = it did not)."""
+    observed_fraction: float = 0.0
+    """Share [0, 1] of the mesh's surface area that some fitted frame saw (``holo:node:observedFraction``)."""
     bounds_world: np.ndarray | None = None
     """[2, 3] world bounding box of the mesh, metres."""
 
@@ -822,6 +825,10 @@ def fit(scene: SceneGraph, obs: Observations, config: FitConfig | None = None,
                                                   voxel_size=inst.grid.voxel_size))  # fmt: skip
             fit_info.faces = len(meshed_mesh.faces)
             fit_info.watertight = _is_watertight(meshed_mesh)
+            tolerance = max(0.02, 3.0 * (inst.grid.voxel_size if inst.grid is not None else 0.0))
+            fit_info.observed_fraction = observed_fraction(meshed_mesh.points, meshed_mesh.faces, views,
+                                                           inst.instance_id, tolerance)  # fmt: skip
+            scene.set_node_info(inst.name, observed_fraction=fit_info.observed_fraction)
             fit_info.fallback = fallback
             fit_info.bounds_world = np.stack([lo, hi])
         results.append(fit_info)
@@ -834,6 +841,8 @@ def fit(scene: SceneGraph, obs: Observations, config: FitConfig | None = None,
         margin = 0.5
         background = _floor_slab(floor_estimate, pts.min(0) - margin, pts.max(0) + margin)
     scene.set_mesh(BACKGROUND, background)
+    scene.set_node_info(BACKGROUND, observed_fraction=observed_fraction(
+        background.points, background.faces, views, 0, max(0.05, 3.0 * config.background_voxel)))  # fmt: skip
     scene.save()
     if bar is not None:
         bar.close()

@@ -19,7 +19,7 @@ from holousd.io._observations import Observations
 from holousd.usd._scene import BACKGROUND, SceneGraph
 from holousd.usd._types import CameraData
 
-__all__ = ["OBSERVE_LAYER", "ObserveConfig", "ObserveResult", "instance_table", "object_name", "run"]
+__all__ = ["OBSERVE_LAYER", "ObserveConfig", "ObserveResult", "instance_table", "object_name", "require_masks", "run"]
 
 OBSERVE_LAYER = "00_observe.usda"
 """File name of the layer this stage writes."""
@@ -60,17 +60,23 @@ def object_name(instance_id: int, names: dict[int, str] | None) -> str:
     return name
 
 
+def require_masks(obs: Observations) -> None:
+    """Raise unless the capture has an instance mask per frame (every stage after s0 needs them)."""
+    if not obs.has_masks:
+        raise HolousdError(
+            f"{obs.camera_file or obs.root or '<observations>'}: no instance masks; fitting needs one integer mask "
+            "per frame (0 = background, 1..N objects): add masks/ to a native capture or instance_mask/ to a "
+            "nerfstudio one (holousd/io/FORMAT.md)"
+        )
+
+
 def instance_table(obs: Observations) -> ObserveResult:
     """Scan every mask of ``obs`` once and count pixels and frames per instance id.
 
     Raises:
         HolousdError: the capture has no instance masks.
     """
-    if not obs.has_masks:
-        raise HolousdError(
-            f"{obs.root or '<observations>'}: no instance masks; fitting needs one integer mask per frame "
-            "(0 = background, 1..N objects): add masks/ to a native capture or instance_mask/ to a nerfstudio one"
-        )
+    require_masks(obs)
     pixels: dict[int, int] = {}
     frames: dict[int, int] = {}
     for i in range(len(obs)):

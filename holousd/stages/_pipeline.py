@@ -5,11 +5,19 @@ Each stage pushes its own layer over the previous one (``00_observe.usda``, ``10
 ``holousd: {stage: {...}}``, the stage name, wall time, peak memory (``ru_maxrss``), its config (as a dict and
 as JSON), the input hash and a run id. ``out/scene.usda`` sublayers the last stage layer, and so every stage.
 
-Resume: a stage is skipped when its layer exists and records the same input hash. The hash covers the capture
-manifest (relative path, size and mtime of every input file), the stage's config and the run id of the layer
-below, so a stage that re-ran invalidates every stage above it. Every layer is written atomically (temp file +
-rename) and the record is added only after the stage's own save succeeded: a crash or Ctrl-C never leaves a
-half-written layer, and a layer without a record is re-run.
+Before any stage writes anything, the whole capture is read and checked (every file's presence, decodability,
+shape, dtype and value range; :meth:`holousd.io.Observations.validate`) and the output folder is checked for
+writability: bad input is refused with a one-line error and the output folder is never touched. Depth pixels
+without a measurement (0, NaN, a far plane) are ignored with one warning; a capture whose depth holds no
+measurement at all is fitted from its masks (visual hull), with a warning.
+
+Resume: a stage is skipped when its layer exists and records the same input hash. The hash is content-only: the
+holousd version, the capture's content (relative path and bytes of every input file), the stage's config and
+the input hash of the stage below, so the same capture and settings give the same hashes (and, the stages being
+seeded, the same layers) on every run and machine. Every layer is written atomically (temp file + rename), the
+record is added only after the stage's own save succeeded, and the whole run is one transaction on the output
+folder: when any stage fails (or Ctrl-C), every layer and asset it wrote is removed and every file it replaced
+is put back, byte for byte.
 """
 
 from __future__ import annotations
@@ -29,7 +37,9 @@ from typing import Any
 
 import numpy as np
 
+from holousd._atomic import folder_transaction
 from holousd._errors import HolousdError
+from holousd._paths import output_folder
 from holousd._sampling import evenly_spaced
 from holousd._torch_threads import torch_threads
 from holousd.stages import _fit, _observe
@@ -47,7 +57,9 @@ __all__ = [
     "PipelineConfig",
     "PipelineResult",
     "StageRecord",
+    "OUTPUT_PATTERNS",
     "capture_manifest_hash",
+    "checked",
     "holdout_frames",
     "preset",
     "read_stage_records",
@@ -223,39 +235,55 @@ def _hash_config(config: Any) -> dict[str, Any]:
     return strip(_jsonable(config))
 
 
-def capture_manifest_hash(path: str | os.PathLike[str]) -> str:
-    """SHA-256 over the capture's files: relative path, size and mtime of each (``gt/`` and dot-files skipped)."""
-    path = Path(path)
+def _file_digest(path: Path) -> str:
     digest = hashlib.sha256()
-    if path.is_file():
-        stat = path.stat()
-        digest.update(f"{path.name}|{stat.st_size}|{stat.st_mtime_ns}\n".encode())
-        return digest.hexdigest()
-    for root, dirs, files in os.walk(path):
-        dirs[:] = sorted(d for d in dirs if not d.startswith(".") and not (Path(root) == path and d == "gt"))
-        for name in sorted(files):
-            if name.startswith("."):
-                continue
-            f = Path(root) / name
-            stat = f.stat()
-            digest.update(f"{f.relative_to(path).as_posix()}|{stat.st_size}|{stat.st_mtime_ns}\n".encode())
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            digest.update(block)
     return digest.hexdigest()
 
 
-def _stage_hash(manifest: str, config: Any, below_run_id: str) -> str:
-    payload = json.dumps({"capture": manifest, "config": _hash_config(config), "below": below_run_id}, sort_keys=True)
+def capture_manifest_hash(path: str | os.PathLike[str], *, exclude: str | os.PathLike[str] | None = None) -> str:
+    """SHA-256 over the capture's content: relative path and SHA-256 of every file (``gt/`` and dot-files
+    skipped); a video given as a file counts with the whole folder it lies in (its side files, masks and
+    depth live there). Times and sizes play no part, so a
+    copied or re-extracted capture hashes the same. ``exclude``: a folder left out (an output folder placed
+    inside the capture)."""
+    path = Path(path).resolve()
+    skip = Path(exclude).resolve() if exclude is not None else None
+    digest = hashlib.sha256()
+    root = path.parent if path.is_file() else path
+    for folder, dirs, files in os.walk(root):
+        dirs[:] = sorted(d for d in dirs if not d.startswith(".") and not (Path(folder) == root and d == "gt")
+                         and (Path(folder) / d).resolve() != skip)  # fmt: skip
+        for name in sorted(files):
+            if name.startswith("."):
+                continue
+            f = Path(folder) / name
+            digest.update(f"{f.relative_to(root).as_posix()}|{_file_digest(f)}\n".encode())
+    return digest.hexdigest()
+
+
+def _stage_hash(manifest: str, config: Any, below_hash: str) -> str:
+    from holousd import __version__
+
+    payload = json.dumps({"holousd": __version__, "capture": manifest, "config": _hash_config(config),
+                          "below": below_hash}, sort_keys=True)  # fmt: skip
     return hashlib.sha256(payload.encode()).hexdigest()
 
 
 def _read_record(layer_file: Path) -> dict[str, Any] | None:
-    from pxr import Sdf
+    from pxr import Sdf, Tf
 
     if not layer_file.is_file():
         return None
-    layer = Sdf.Layer.FindOrOpen(str(layer_file))
-    if layer is None:
-        return None
-    layer.Reload()
+    try:
+        layer = Sdf.Layer.FindOrOpen(str(layer_file))
+        if layer is None:
+            return None
+        layer.Reload()
+    except Tf.ErrorException:
+        return None  # unreadable: no record, so the stage runs again and replaces it
     data = layer.customLayerData.get("holousd", {})
     record = data.get("stage") if isinstance(data, dict) else None
     return dict(record) if isinstance(record, dict) else None
@@ -346,75 +374,65 @@ def _run_appearance(scene: SceneGraph, obs: Any, config: AppearanceStageConfig, 
 
 
 # --------------------------------------------------------------------------------------------- the pipeline
-def reconstruct(
-    input_path: str | os.PathLike[str],
-    out: str | os.PathLike[str],
-    config: PipelineConfig | None = None,
-    *,
-    until: str | None = None,
-    resume: bool = False,
-    log: Callable[[str], None] | None = None,
-) -> PipelineResult:
-    """Run the pipeline on a capture and write ``out/scene.usda``.
+OUTPUT_PATTERNS = ("*.usda", "*.usdc", "assets", "assets/**/*")
+"""Files of an output folder a run may write (and puts back when it fails): layers, scene file, assets."""
 
-    Args:
-        input_path: Capture folder or file (any layout :func:`holousd.io.load` reads; instance masks needed).
-        out: Output folder (created).
-        config: Settings (default: the ``default`` preset).
-        until: Last stage to run (one of :data:`STAGES`; default: all).
-        resume: Skip stages whose layer exists with an unchanged input hash.
-        log: Called with one progress line per stage (default: print to stderr).
 
-    Returns:
-        Stage records and the scene file.
-    """
-    from holousd.io import load
+def checked(obs: Any, log: Callable[[str], None]) -> Any:
+    """``obs`` after reading and checking every frame (:meth:`Observations.validate`), with its warnings logged
+    and the depth pixels without a measurement ignored; what every stage reads. Raises on the first problem."""
+    from holousd.stages._observe import require_masks
 
-    config = config or PRESETS["default"]
-    if log is None:
+    log(f"checking the capture: {len(obs)} frames of {obs.root or obs} ...")
+    require_masks(obs)
+    check = obs.validate()
+    for line in check.warnings:
+        log(f"warning: {line}")
+    return obs.with_valid_depth(check)
 
-        def log(line: str) -> None:
-            print(line, file=sys.stderr, flush=True)
 
-    if until is not None and until not in STAGES:
-        raise HolousdError(f"--until {until!r}: unknown stage; choose one of {', '.join(STAGES)}")
-    stages = list(STAGES[: STAGES.index(until) + 1]) if until else list(STAGES)
-    if not config.appearance.enabled and "appearance" in stages:
-        stages.remove("appearance")
-    input_path = Path(input_path)
-    if not input_path.exists():
-        raise HolousdError(f"{input_path}: no such folder; give the folder of a capture (or a video file)")
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    start = time.perf_counter()
-    manifest = capture_manifest_hash(input_path)
-    configs = {"observe": config.observe, "fit": config.fit, "physics": config.physics, "appearance": config.appearance}
-    obs = None
+def _stage_configs(config: PipelineConfig) -> dict[str, Any]:
+    return {"observe": config.observe, "fit": config.fit, "physics": config.physics, "appearance": config.appearance}
+
+
+def _plan(out: Path, stages: list[str], configs: dict[str, Any], manifest: str,
+          resume: bool) -> list[tuple[str, str, bool, dict[str, Any] | None]]:  # fmt: skip
+    """(stage, input hash, skip, existing record) per stage: with ``resume``, the stages up to the first one whose
+    layer is missing or records another input hash are skipped; that stage and every one above it run."""
+    plan = []
+    below = ""
+    forced = not resume
+    for name in stages:
+        input_hash = _stage_hash(manifest, configs[name], below)
+        existing = None if forced else _read_record(out / LAYERS[name])
+        skip = existing is not None and existing.get("input_hash") == input_hash
+        forced = forced or not skip
+        plan.append((name, input_hash, skip, existing if skip else None))
+        below = input_hash
+    return plan
+
+
+def _run_stages(plan: list[tuple[str, str, bool, dict[str, Any] | None]], obs: Any, out: Path,
+                config: PipelineConfig, log: Callable[[str], None]) -> list[StageRecord]:  # fmt: skip
+    configs = _stage_configs(config)
+    stages = [name for name, _, _, _ in plan]
     scene: SceneGraph | None = None
-    below_run = ""
-    forced = False  # an earlier stage re-ran: every later stage re-runs
     records: list[StageRecord] = []
-    for k, name in enumerate(stages):
-        layer_file = (out / LAYERS[name]).absolute()
-        input_hash = _stage_hash(manifest, configs[name], below_run)
-        prefix = f"[{k + 1}/{len(stages)}] {name}"
-        existing = _read_record(layer_file) if resume and not forced else None
-        if existing is not None and existing.get("input_hash") == input_hash:
+    for k, (name, input_hash, skip, existing) in enumerate(plan):
+        layer_file = out / LAYERS[name]
+        prefix = f"[{k + 1}/{len(plan)}] {name}"
+        if skip:
+            assert existing is not None
             rec = StageRecord(name=name, layer=str(layer_file), wall_s=float(existing.get("wall_s", 0.0)),
                               peak_mem_mb=float(existing.get("peak_mem_mb", 0.0)), input_hash=input_hash,
                               run_id=str(existing.get("run_id", "")), skipped=True,
                               config=_jsonable(configs[name]))  # fmt: skip
             records.append(rec)
-            below_run = rec.run_id
-            scene = None
             log(f"{prefix}: up to date ({layer_file.name}, recorded {rec.wall_s:.1f} s), skipped")
             continue
-        forced = True
         log(f"{prefix}: running ...")
         if scene is None and k > 0:
             scene = SceneGraph.open(out / LAYERS[stages[k - 1]])
-        if obs is None and name in ("observe", "fit", "appearance"):
-            obs = load(input_path)
         t0 = time.perf_counter()
         if name == "observe":
             scene = _observe.run(obs, out, config.observe)
@@ -429,9 +447,66 @@ def reconstruct(
                           input_hash=input_hash, run_id=uuid.uuid4().hex, config=_jsonable(configs[name]))  # fmt: skip
         _write_record(layer_file, rec)
         records.append(rec)
-        below_run = rec.run_id
         log(f"{prefix}: done in {wall:.1f} s (peak {rec.peak_mem_mb:.0f} MiB) -> {layer_file.name}")
-    scene_file = _write_scene_file(out, out / LAYERS[stages[-1]])
+    return records
+
+
+def reconstruct(
+    input_path: str | os.PathLike[str],
+    out: str | os.PathLike[str],
+    config: PipelineConfig | None = None,
+    *,
+    until: str | None = None,
+    resume: bool = False,
+    log: Callable[[str], None] | None = None,
+) -> PipelineResult:
+    """Run the pipeline on a capture and write ``out/scene.usda``.
+
+    Args:
+        input_path: Capture folder or file (any layout :func:`holousd.io.load` reads; instance masks needed).
+        out: Output folder (created). On failure it is left exactly as it was.
+        config: Settings (default: the ``default`` preset).
+        until: Last stage to run (one of :data:`STAGES`; default: all).
+        resume: Skip stages whose layer exists with an unchanged input hash.
+        log: Called with one progress line per stage (default: print to stderr).
+
+    Returns:
+        Stage records and the scene file.
+
+    Raises:
+        HolousdError: bad input (capture, output folder, options), before anything was written; or a stage
+            failed, after the output folder was put back as it was.
+    """
+    from holousd.io import load
+
+    config = config or PRESETS["default"]
+    if log is None:
+
+        def log(line: str) -> None:
+            print(line, file=sys.stderr, flush=True)
+
+    if until is not None and until not in STAGES:
+        raise HolousdError(f"--until {until!r}: unknown stage; choose one of {', '.join(STAGES)}")
+    stages = list(STAGES[: STAGES.index(until) + 1]) if until else list(STAGES)
+    if not config.appearance.enabled and "appearance" in stages:
+        stages.remove("appearance")
+    input_path = Path(input_path).absolute()
+    if not input_path.exists():
+        raise HolousdError(f"{input_path}: no such folder; give the folder of a capture (or a video file)")
+    out = output_folder(out, "output folder", create=False)  # absolute: stages re-root relative paths
+    capture_folder = input_path.resolve() if input_path.is_dir() else input_path.resolve().parent
+    if out.resolve() == capture_folder:
+        raise HolousdError(f"{out}: the output folder is the capture's own folder; choose another --out")
+    start = time.perf_counter()
+    obs = load(input_path)  # reads the manifest: a capture that cannot be opened fails here, before anything else
+    manifest = capture_manifest_hash(input_path, exclude=out)
+    plan = _plan(out, stages, _stage_configs(config), manifest, resume)
+    if any(not skip for _, _, skip, _ in plan):
+        obs = checked(obs, log)
+    out.mkdir(parents=True, exist_ok=True)
+    with folder_transaction(out, OUTPUT_PATTERNS):
+        records = _run_stages(plan, obs, out, config, log)
+        scene_file = _write_scene_file(out, out / LAYERS[stages[-1]])
     total = time.perf_counter() - start
     log(f"reconstruct: {scene_file} in {total:.1f} s")
     return PipelineResult(scene_file=scene_file, stages=records, total_s=total)

@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
-from holousd._argtypes import positive_int, resolution
+from holousd._argtypes import emit_json, positive_int, resolution
 
 __all__ = ["add_commands"]
 
@@ -149,7 +148,10 @@ def _eval(args: argparse.Namespace) -> int:
 
     result = evaluate_scene(args.recon, args.gt, EvalConfig(samples=args.samples, physics=not args.no_physics))
     d = result.to_dict()
-    print(json.dumps(d, indent=2) if args.json else format_evaluation(d))
+    if args.json:
+        emit_json(args, d)
+    else:
+        print(format_evaluation(d))
     return 0
 
 

@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from dataclasses import asdict
 from pathlib import Path
+
+from holousd._argtypes import emit_json
 
 __all__ = ["add_commands"]
 
@@ -39,12 +40,16 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
         help="write a flattened physics scene for simulators and/or a USDZ package",
         description="Export a scene. --sim writes one flattened, self-contained physics scene (meshes, "
         "colliders, rigid bodies, materials, relations; no splats, cameras or SDF files) that Newton's "
-        "ModelBuilder.add_usd, Isaac Sim and other UsdPhysics readers load. --usdz packages the full scene "
-        "with all its assets. Existing outputs are replaced only once the new file is complete.",
+        "ModelBuilder.add_usd, Isaac Sim and other UsdPhysics readers load; a scene that holousd validate finds "
+        "broken for simulation is refused unless --force. --usdz packages the full scene with all its assets. "
+        "Existing outputs are replaced only once the new file is complete.",
     )
     export.add_argument("scene", type=Path, metavar="SCENE", help="scene file")
     export.add_argument("--sim", type=Path, metavar="OUT.usda", help="flattened physics scene to write")
     export.add_argument("--usdz", type=Path, metavar="OUT.usdz", help="USDZ package of the full scene to write")
+    export.add_argument("--force", action="store_true",
+                        help="export even when holousd validate finds errors that break simulation (support cycle, "
+                        "dangling relation, body without mass or collider)")  # fmt: skip
     export.set_defaults(handler=_export)
 
 
@@ -59,7 +64,7 @@ def _info(args: argparse.Namespace) -> int:
     if args.json:
         data = asdict(summary)
         data["total_splats"] = summary.total_splats
-        print(json.dumps(data, indent=2))
+        emit_json(args, data)
         return 0
     print(f"scene: {summary.path}")
     print(f"layers (strongest first): {', '.join(Path(layer).name for layer in summary.layers)}")
@@ -79,7 +84,7 @@ def _info(args: argparse.Namespace) -> int:
                 str(n.mesh_faces),
                 "x".join(map(str, n.sdf_resolution)) if n.sdf_resolution else "-",
                 str(n.splats),
-                f"{n.mass_kg:.3f}" if n.mass_kg is not None else "static",
+                _mass_cell(n),
                 f"{n.collider} ({n.collider_parts})" if n.collider else "none!",
             )
         )
@@ -87,7 +92,17 @@ def _info(args: argparse.Namespace) -> int:
     for row in rows:
         print("  ".join(cell.ljust(w) for cell, w in zip(row, widths, strict=True)).rstrip())
     print(f"{len(summary.nodes)} nodes, {summary.total_splats} splats")
+    unset = [n.name for n in summary.nodes if n.dynamic and n.mass_kg is None]
+    if unset:
+        print(f"warning: {', '.join(unset)}: rigid body without an authored mass (a simulator then guesses one from "
+              "its own default density); author UsdPhysics.MassAPI mass", file=sys.stderr)  # fmt: skip
     return 0
+
+
+def _mass_cell(node) -> str:  # noqa: ANN001 - NodeSummary
+    if node.mass_kg is not None:
+        return f"{node.mass_kg:.3f}"
+    return "unset!" if node.dynamic else "static"
 
 
 def _validate(args: argparse.Namespace) -> int:
@@ -95,7 +110,7 @@ def _validate(args: argparse.Namespace) -> int:
 
     report = validate(_open(args.scene).stage)
     if args.json:
-        print(json.dumps(report.to_dict(), indent=2))
+        emit_json(args, report.to_dict())
     else:
         for issue in report.issues:
             print(issue)
@@ -106,8 +121,27 @@ def _validate(args: argparse.Namespace) -> int:
     return 0 if report.ok else 1
 
 
+_SIM_RULES = frozenset({"support-tree", "support-cycle", "dangling-relationship", "rigid-body", "mass", "collider",
+                        "up-axis", "meters-per-unit", "kilograms-per-unit", "schema-version", "unknown-schema"})
+"""holousd validation rules whose errors make an exported physics scene wrong in a simulator."""
+
+
+def _refuse_broken_physics(stage, scene: Path) -> None:  # noqa: ANN001 - Usd.Stage, imported lazily
+    from holousd._errors import HolousdError
+    from holousd.usd._validate import validate
+
+    broken = [i for i in validate(stage).issues
+              if i.severity == "error" and i.rule.removeprefix("holousd:") in _SIM_RULES]  # fmt: skip
+    if broken:
+        first = broken[0]
+        more = f" (and {len(broken) - 1} more: holousd validate {scene})" if len(broken) > 1 else ""
+        raise HolousdError(f"{first.where}: {first.message}; {first.fix}{more}; nothing was exported "
+                           "(--force exports it anyway)")  # fmt: skip
+
+
 def _export(args: argparse.Namespace) -> int:
     from holousd._errors import HolousdError
+    from holousd._paths import output_file
     from holousd.usd._export import export_sim, export_usdz
 
     if args.sim is None and args.usdz is None:
@@ -115,8 +149,13 @@ def _export(args: argparse.Namespace) -> int:
     for out in (args.sim, args.usdz):
         if out is not None and out.resolve() == args.scene.resolve():
             raise HolousdError(f"{out}: refusing to overwrite the input scene; choose another output path")
+    for out in (args.sim, args.usdz):
+        if out is not None:
+            output_file(out, "export file")
     scene = _open(args.scene)
     if args.sim is not None:
+        if not args.force:
+            _refuse_broken_physics(scene.stage, args.scene)
         print(f"wrote {export_sim(scene.stage, args.sim)}")
     if args.usdz is not None:
         print(f"wrote {export_usdz(scene.stage, args.usdz)}")

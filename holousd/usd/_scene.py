@@ -28,7 +28,7 @@ from pxr import Gf, Sdf, Tf, Usd, UsdGeom, UsdPhysics, UsdShade, UsdVol, Vt
 
 from holousd._atomic import atomic_path
 from holousd._errors import InvalidDataError, SceneError, SchemaVersionError
-from holousd.usd._layers import layer_path, new_layer_over, save_layer
+from holousd.usd._layers import layer_path, new_layer_over, open_layer_stack, save_layer, usd_error_text
 from holousd.usd._plugin import SCHEMA_VERSION
 from holousd.usd._types import (
     CameraData,
@@ -106,6 +106,8 @@ class NodeSummary:
     """Number of Gaussian splats (0 when absent)."""
     mass_kg: float | None
     """Authored mass, or None."""
+    dynamic: bool = False
+    """True for an enabled rigid body (simulated, whether or not it has a mass); False for a static collider."""
     collider: str | None
     """Collider approximation ('convexHull', 'convexDecomposition', 'none') or None when there is none."""
     collider_parts: int
@@ -263,10 +265,12 @@ class SceneGraph:
         if Sdf.FileFormat.FindByExtension(path.suffix.lstrip(".")) is None:
             raise SceneError(f"{path}: not a USD file (extension {path.suffix!r}); give a .usda, .usdc, .usd or .usdz")
         try:
+            layers = open_layer_stack(path)  # held open, so that USD does not read them twice
             stage = Usd.Stage.Open(str(path))
+            del layers
         except Tf.ErrorException as exc:
-            first = str(exc).strip().splitlines()[-1] if str(exc).strip() else "unknown error"
-            raise SceneError(f"{path}: cannot be read as USD ({first.strip()}); is the file corrupt?") from exc
+            raise SceneError(f"{path}: cannot be read as USD ({usd_error_text(exc)}); is the file corrupt or "
+                             "truncated? Restore it or re-export it") from exc
         if stage is None:
             raise SceneError(f"{path}: cannot be read as USD; is the file corrupt?")
         version = schema_version_of(stage.GetRootLayer())
@@ -1025,8 +1029,17 @@ class SceneGraph:
                     sdf_resolution=list(resolution) if resolution is not None else None,
                     splats=len(positions) if positions is not None else 0,
                     mass_kg=float(mass) if mass else None,
+                    dynamic=_is_dynamic(prim),
                     collider=collider_kind,
                     collider_parts=collider_parts,
                 )
             )
         return result
+
+
+def _is_dynamic(prim: Usd.Prim) -> bool:
+    """An enabled rigid body: a simulator moves it (a missing mass does not make it static)."""
+    if not prim.HasAPI(UsdPhysics.RigidBodyAPI):
+        return False
+    enabled = UsdPhysics.RigidBodyAPI(prim).GetRigidBodyEnabledAttr().Get()
+    return enabled is None or bool(enabled)
