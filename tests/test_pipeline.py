@@ -313,3 +313,15 @@ def test_observed_fraction_is_measured(recon: tuple[Path, _pipeline.PipelineResu
     objects = [v for k, v in fractions.items() if k != "background"]
     assert all(0.05 < v < 0.95 for v in objects), fractions  # seen from one side: never all, never nothing
     assert 0 < fractions["background"] <= 1
+
+
+def test_physics_set_up_records_how_the_geometry_was_changed(recon: tuple[Path, _pipeline.PipelineResult]) -> None:
+    scene = SceneGraph.open(recon[0] / "scene.usda")
+    for name in scene.objects():
+        record = scene.get_geometry_record(name)
+        assert record is not None and record.volume > 0 and record.collider_reach >= 0 and record.penetration >= 0
+        physics = scene.get_physics(name)
+        assert physics.diagonal_inertia is not None and np.all(physics.diagonal_inertia > 0)
+        assert physics.mass == pytest.approx(500.0 * record.volume, rel=1e-6) or physics.mass == pytest.approx(1e-3)
+    rows = {n.name: n for n in scene.summary().nodes}
+    assert rows["mug_1"].collider_reach_cm is not None and rows["background"].collider_reach_cm is None

@@ -102,3 +102,25 @@ def test_splat_binding_past_mesh(example_copy: Path) -> None:
     layer.Save()
     issues = _rules(SceneGraph.open(example_copy).stage)["holousd:splat-binding"]
     assert "face index 10000" in issues[0].message
+
+
+def test_one_geometry_rules(example_copy: Path) -> None:
+    import numpy as np
+
+    from holousd.usd import Collider, MeshData, Pose
+
+    scene = SceneGraph.open(example_copy)
+    assert not {"holousd:collider-reach", "holousd:overlap", "holousd:watertight"} & set(_rules(scene.stage))
+    box = scene.get_mesh("box")
+    lifted = MeshData(points=box.points + [0.0, 0.0, 0.05], faces=box.faces)  # a collider 5 cm above the mesh
+    scene.set_collider("box", Collider(approximation="convexHull", parts=[lifted]))
+    (reach,) = _rules(scene.stage)["holousd:collider-reach"]
+    assert reach.where == "/World/Objects/box/Collision" and "5.0 cm outside" in reach.message
+    scene.set_collider("box", Collider(approximation="convexHull", parts=[box]))
+    mug = scene.get_pose("mug")
+    scene.set_pose("box", Pose(translation=np.asarray(mug.translation) + [0.03, 0.0, 0.0]))  # into the mug
+    (overlap,) = _rules(scene.stage)["holousd:overlap"]
+    assert "box" in overlap.message and "mug" in overlap.message and "cm^3" in overlap.message
+    scene.set_mesh("book", MeshData(points=scene.get_mesh("book").points, faces=scene.get_mesh("book").faces[:-2]))
+    (hole,) = _rules(scene.stage)["holousd:watertight"]
+    assert hole.where == "/World/Objects/book/Geom"

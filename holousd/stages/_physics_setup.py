@@ -31,9 +31,10 @@ from pathlib import Path
 import numpy as np
 
 from holousd._errors import HolousdError, SceneError
+from holousd.geometry._contact import collider_reach, mass_properties, overlap
 from holousd.graph import RelationConfig, Relations, infer_relations, push_out_of, settle_offsets
 from holousd.usd._scene import BACKGROUND, SceneGraph
-from holousd.usd._types import Collider, MeshData, PhysicsProps, Pose
+from holousd.usd._types import Collider, GeometryRecord, MeshData, PhysicsProps, Pose
 
 __all__ = ["PHYSICS_LAYER", "ObjectPhysics", "PhysicsSetupConfig", "PhysicsSetupResult", "run", "setup_physics"]
 
@@ -110,6 +111,10 @@ class PhysicsSetupConfig:
     metres."""
     relations: RelationConfig = field(default_factory=RelationConfig)
     """Support / beside inference settings."""
+    one_geometry: bool = False
+    """Use the one-geometry set-up instead (:mod:`holousd.stages._physics_one`: every edit made to the rendered
+    mesh and SDF, the collider derived from the final mesh alone). Opt-in while it is less stable than this one
+    on fitted scenes; density, friction, restitution, slab and relation settings carry over."""
     seed: int = 0
     """Seed of CoACD and of the surface sampling."""
     provenance: str = "s2_physics_setup"
@@ -135,7 +140,7 @@ class ObjectPhysics:
     volume_m3: float
     """Volume used for the mass, m^3."""
     settled_m: list[float]
-    """Shift applied to set it onto its parent and out of the walls (including its ancestors'), metres."""
+    """Move from the pose the fit gave: onto its parent and out of the walls (its ancestors' included), metres."""
     mass_kg: float
     """Authored mass, kg."""
     base_cut_m: float = 0.0
@@ -150,6 +155,14 @@ class ObjectPhysics:
     """Collider parts cut apart from an overlapping neighbour."""
     extended: bool = False
     """The hull was extended down to its base (centre of mass not over the base)."""
+    collider_reach_m: float = 0.0
+    """How far the collider reaches outside the rendered mesh, metres (the collider-only edits above show here)."""
+    penetration_m: float = 0.0
+    """Deepest overlap of the rendered mesh with another object's mesh or the room's slabs, metres."""
+    shift_refused_m: float = 0.0
+    """A move onto the support larger than allowed that was not made (one-geometry set-up; 0: none), metres."""
+    edits: list[str] = field(default_factory=list)
+    """What was done, in order (as recorded in ``holo:geometry:edits``)."""
 
 
 @dataclass(kw_only=True)
@@ -553,6 +566,28 @@ def _decompose(mesh: MeshData, config: PhysicsSetupConfig) -> list[tuple[np.ndar
     return convex_decomposition(mesh.points, mesh.faces, cfg)
 
 
+def object_meshes(scene: SceneGraph) -> tuple[dict[str, MeshData], list[str]]:
+    """Every object's mesh (object coordinates), and the objects without one (they get no rigid body).
+
+    Raises:
+        HolousdError: no object has a mesh.
+    """
+    meshes: dict[str, MeshData] = {}
+    skipped: list[str] = []
+    for name in scene.objects():
+        try:
+            mesh = scene.get_mesh(name)
+        except SceneError:
+            mesh = None
+        if mesh is None or len(mesh.faces) == 0:
+            skipped.append(name)
+            continue
+        meshes[name] = mesh
+    if not meshes:
+        raise HolousdError(f"{scene.path}: no object has a mesh; run s1_fit before the physics set-up")
+    return meshes, skipped
+
+
 def setup_physics(scene: SceneGraph, config: PhysicsSetupConfig | None = None,
                   out_dir: str | os.PathLike[str] | None = None) -> PhysicsSetupResult:  # fmt: skip
     """Infer relations and author colliders, rigid bodies and materials as the layer ``20_physics.usda``.
@@ -565,6 +600,8 @@ def setup_physics(scene: SceneGraph, config: PhysicsSetupConfig | None = None,
     from holousd.physics import choose_collider, convex_hull, convexity
 
     config = config or PhysicsSetupConfig()
+    if config.one_geometry:
+        return _one_geometry(scene, config, out_dir)
     if config.collider_policy not in ("contents", "convexity"):
         raise HolousdError(f"collider_policy {config.collider_policy!r}: choose 'contents' or 'convexity'")
     if config.background_collider not in ("slabs", "mesh"):
@@ -573,22 +610,8 @@ def setup_physics(scene: SceneGraph, config: PhysicsSetupConfig | None = None,
         if scene.path is None:
             raise HolousdError("physics set-up: the scene is in memory; save it to a file first or pass out_dir")
         out_dir = scene.path.parent
-    local: dict[str, MeshData] = {}
-    world: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-    skipped: list[str] = []
-    for name in scene.objects():
-        try:
-            mesh = scene.get_mesh(name)
-        except SceneError:
-            skipped.append(name)
-            continue
-        if len(mesh.faces) == 0:
-            skipped.append(name)
-            continue
-        local[name] = mesh
-        world[name] = (scene.get_pose(name).apply(mesh.points), mesh.faces)
-    if not local:
-        raise HolousdError(f"{scene.path}: no object has a mesh; run s1_fit before the physics set-up")
+    local, skipped = object_meshes(scene)
+    world = {name: (scene.get_pose(name).apply(mesh.points), mesh.faces) for name, mesh in local.items()}
     try:
         background = scene.get_mesh(BACKGROUND)
     except SceneError:
@@ -711,6 +734,7 @@ def setup_physics(scene: SceneGraph, config: PhysicsSetupConfig | None = None,
             scene.set_mesh(name, cleaned)
             if name == BACKGROUND:
                 background = cleaned
+    slabs_world = list(slabs)
     if background is not None and len(background.faces):
         if slabs:  # world -> background coordinates (the identity for a fitted room)
             slabs = _to_object([(m.points, m.faces) for m in slabs], scene.get_pose(BACKGROUND))
@@ -728,9 +752,21 @@ def setup_physics(scene: SceneGraph, config: PhysicsSetupConfig | None = None,
                                       orientation=pose.orientation))  # fmt: skip
         approximation = "convexDecomposition" if len(parts) > 1 else "convexHull"
         scene.set_collider(name, Collider(approximation=approximation, parts=parts))
-        volume, com = _mass_properties(mesh)
+        props = mass_properties((mesh.points, mesh.faces), config.density)
+        volume = props.volume_m3
         mass = max(config.density * volume, 1e-3)
-        scene.set_physics(name, PhysicsProps(mass=mass, center_of_mass=com, density=config.density, **material))
+        inertia = props.diagonal_inertia * (mass / max(props.mass_kg, 1e-12))  # from the mesh, as the mass
+        scene.set_physics(name, PhysicsProps(mass=mass, center_of_mass=props.center_of_mass,
+                                             diagonal_inertia=inertia, principal_axes=props.principal_axes,
+                                             density=config.density, **material))  # fmt: skip
+        reach = collider_reach([(p.points, p.faces) for p in parts], (mesh.points, mesh.faces), seed=config.seed)
+        penetration = _penetration(name, local, scene, offsets, slabs_world)
+        edits = [e for e, on in (("clip:wall", name in clipped), ("collider:cut-base", name in base_cut),
+                                 ("collider:cut-top", name in top_cut), ("collider:carve", name in carved),
+                                 ("collider:extend-base", name in extended), ("collider:separate", name in separated),
+                                 ("shift", bool(np.any(offsets[name] != 0.0)))) if on]  # fmt: skip
+        scene.set_geometry_record(name, GeometryRecord(fit_shift=offsets[name], collider_reach=reach,
+                                                       penetration=penetration, volume=volume, edits=edits))
         parent = relations.support[name]
         scene.set_support(name, parent)
         scene.set_beside(name, relations.beside.get(name, []))
@@ -740,9 +776,38 @@ def setup_physics(scene: SceneGraph, config: PhysicsSetupConfig | None = None,
                                      base_cut_m=base_cut.get(name, 0.0),
                                      top_cut_m=top_cut.get(name, 0.0), carved=carved.get(name, 0),
                                      clipped_m3=clipped.get(name, 0.0), separated=separated.get(name, 0),
-                                     extended=name in extended))  # fmt: skip
+                                     extended=name in extended, collider_reach_m=reach,
+                                     penetration_m=penetration, edits=edits))  # fmt: skip
     scene.save()
     return PhysicsSetupResult(scene=scene, relations=relations, objects=results, skipped=skipped)
+
+
+def _penetration(name: str, local: dict[str, MeshData], scene: SceneGraph, offsets: dict[str, np.ndarray],
+                 slabs: list[MeshData]) -> float:  # fmt: skip
+    """Deepest overlap of an object's rendered mesh (at its settled pose) with another object's or a room slab,
+    metres."""
+
+    def world(n: str) -> tuple[np.ndarray, np.ndarray]:
+        return scene.get_pose(n).apply(local[n].points) + offsets[n], local[n].faces
+
+    own = world(name)
+    depths = [overlap(own, world(other)).depth_m for other in local if other != name]
+    depths += [overlap(own, (s.points, s.faces)).depth_m for s in slabs]
+    return float(max(depths, default=0.0))
+
+
+def _one_geometry(scene: SceneGraph, config: PhysicsSetupConfig,
+                  out_dir: str | os.PathLike[str] | None) -> PhysicsSetupResult:  # fmt: skip
+    from holousd.stages import _physics_one
+
+    one = _physics_one.PhysicsSetupConfig(density=config.density, friction=config.friction,
+                                          restitution=config.restitution, clip_to_walls=config.clip_to_walls,
+                                          clearance=config.clearance, max_parts=config.max_parts,
+                                          decomposition_iterations=config.decomposition_iterations,
+                                          background_collider=config.background_collider,
+                                          slab_thickness=config.slab_thickness, relations=config.relations,
+                                          seed=config.seed, provenance=config.provenance)  # fmt: skip
+    return _physics_one.setup_physics(scene, one, out_dir)
 
 
 def run(scene: SceneGraph, config: PhysicsSetupConfig | None = None) -> SceneGraph:

@@ -18,7 +18,9 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
         "info",
         help="summarise a scene: nodes, relations, physics, splat counts",
         description="Summarise a holousd scene: layers, stage metadata, and per node its support parent, "
-        "touching siblings, mesh size, SDF resolution, splat count, mass and collider.",
+        "touching siblings, mesh size, SDF resolution, splat count, mass and collider, and (where the physics "
+        "set-up recorded them) its move from the fitted pose, its collider's reach outside the rendered mesh and "
+        "its mesh's deepest penetration into another node, in cm.",
     )
     info.add_argument("scene", type=Path, metavar="SCENE", help="scene file (.usda/.usdc/.usd/.usdz)")
     info.add_argument("--json", action="store_true", help="print JSON instead of a table")
@@ -72,7 +74,8 @@ def _info(args: argparse.Namespace) -> int:
         f"upAxis {summary.up_axis}, metersPerUnit {summary.meters_per_unit:g}, "
         f"kilogramsPerUnit {summary.kilograms_per_unit:g}, holousd schema {summary.schema_version}"
     )
-    header = ("node", "id", "supported by", "beside", "faces", "sdf", "splats", "mass kg", "collider")
+    header = ("node", "id", "supported by", "beside", "faces", "sdf", "splats", "mass kg", "collider", "shift cm",
+              "reach cm", "pen cm")  # fmt: skip
     rows = [header]
     for n in summary.nodes:
         rows.append(
@@ -86,6 +89,8 @@ def _info(args: argparse.Namespace) -> int:
                 str(n.splats),
                 _mass_cell(n),
                 f"{n.collider} ({n.collider_parts})" if n.collider else "none!",
+                *(f"{v:.2f}" if v is not None else "-"
+                  for v in (n.fit_shift_cm, n.collider_reach_cm, n.penetration_cm)),  # fmt: skip
             )
         )
     widths = [max(len(r[i]) for r in rows) for i in range(len(header))]

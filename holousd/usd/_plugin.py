@@ -21,6 +21,7 @@ API_SCHEMAS = (
     "HoloSdfAPI",
     "HoloGaussianOnMeshAPI",
     "HoloPhysicsAPI",
+    "HoloGeometryAPI",
     "HoloRelationsAPI",
     "HoloEnergyAPI",
     "HoloCameraAPI",

@@ -35,6 +35,7 @@ from holousd.usd._types import (
     Collider,
     Energies,
     GaussianSplats,
+    GeometryRecord,
     MeshData,
     NodeInfo,
     PhysicsProps,
@@ -112,6 +113,12 @@ class NodeSummary:
     """Collider approximation ('convexHull', 'convexDecomposition', 'none') or None when there is none."""
     collider_parts: int
     """Number of collider meshes."""
+    fit_shift_cm: float | None = None
+    """Distance moved from the pose the fit gave, cm (None: no record; ``HoloGeometryAPI``)."""
+    collider_reach_cm: float | None = None
+    """How far the collider reaches outside the rendered mesh, cm (None: no record)."""
+    penetration_cm: float | None = None
+    """Deepest overlap of the rendered mesh with another node's, cm (None: no record)."""
 
 
 @dataclass(kw_only=True)
@@ -725,7 +732,9 @@ class SceneGraph:
             mass_api.CreateCenterOfMassAttr().Set(Gf.Vec3f(*map(float, props.center_of_mass)))
             if props.diagonal_inertia is not None:
                 mass_api.CreateDiagonalInertiaAttr().Set(Gf.Vec3f(*map(float, props.diagonal_inertia)))
-                mass_api.CreatePrincipalAxesAttr().Set(Gf.Quatf(1.0, 0.0, 0.0, 0.0))
+                x, y, z, w = (float(v) for v in (props.principal_axes if props.principal_axes is not None
+                                                 else (0.0, 0.0, 0.0, 1.0)))  # fmt: skip
+                mass_api.CreatePrincipalAxesAttr().Set(Gf.Quatf(w, x, y, z))
             prim.ApplyAPI("HoloPhysicsAPI")
             prim.GetAttribute("holo:physics:linearDamping").Set(props.linear_damping)
             prim.GetAttribute("holo:physics:angularDamping").Set(props.angular_damping)
@@ -740,6 +749,34 @@ class SceneGraph:
         UsdShade.MaterialBindingAPI.Apply(prim).Bind(material, UsdShade.Tokens.weakerThanDescendants, "physics")
         self._bind_colliders(prim)
         self._stamp(prim)
+
+    def set_geometry_record(self, name: str, record: GeometryRecord) -> None:
+        """Author how an object's final mesh relates to its fit and its collider (``HoloGeometryAPI``)."""
+        prim = self._prim(name)
+        prim.ApplyAPI("HoloGeometryAPI")
+        prim.GetAttribute("holo:geometry:fitShift").Set(Gf.Vec3f(*map(float, record.fit_shift)))
+        prim.GetAttribute("holo:geometry:colliderReach").Set(float(record.collider_reach))
+        prim.GetAttribute("holo:geometry:penetrationDepth").Set(float(record.penetration))
+        prim.GetAttribute("holo:geometry:volume").Set(float(record.volume))
+        prim.GetAttribute("holo:geometry:edits").Set(Vt.StringArray(list(record.edits)))
+        self._stamp(prim)
+
+    def get_geometry_record(self, name: str) -> GeometryRecord | None:
+        """The record :meth:`set_geometry_record` wrote, or None when the node has none."""
+        prim = self._prim(name)
+        reach = prim.GetAttribute("holo:geometry:colliderReach")
+        if not reach or not reach.HasAuthoredValue():
+            return None
+
+        def get(attr: str, default: object) -> object:
+            value = prim.GetAttribute(attr).Get()
+            return default if value is None else value
+
+        return GeometryRecord(fit_shift=np.array(get("holo:geometry:fitShift", (0.0, 0.0, 0.0)), float),
+                              collider_reach=float(reach.Get()),
+                              penetration=float(get("holo:geometry:penetrationDepth", 0.0)),
+                              volume=float(get("holo:geometry:volume", 0.0)),
+                              edits=[str(e) for e in get("holo:geometry:edits", [])])  # fmt: skip
 
     def _bind_colliders(self, prim: Usd.Prim) -> None:
         """Bind the node's physics material directly on each collider prim too.
@@ -767,13 +804,14 @@ class SceneGraph:
             UsdPhysics.RigidBodyAPI(prim).GetRigidBodyEnabledAttr().Get()
         )
         mass_api = UsdPhysics.MassAPI(prim)
-        mass = com = inertia = None
+        mass = com = inertia = axes = None
         if dynamic:
             mass = mass_api.GetMassAttr().Get() if prim.HasAPI(UsdPhysics.MassAPI) else None
             if not mass:
                 raise SceneError(f"{where}: rigid body without a mass (UsdPhysics.MassAPI); set it with set_physics()")
             com = mass_api.GetCenterOfMassAttr().Get()
             inertia = mass_api.GetDiagonalInertiaAttr().Get()
+            axes = mass_api.GetPrincipalAxesAttr().Get()
         material, _ = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial("physics")
         if not material or not material.GetPrim().HasAPI(UsdPhysics.MaterialAPI):
             raise SceneError(f"{where}: no physics material bound; write it with set_physics()")
@@ -784,6 +822,8 @@ class SceneGraph:
                 mass=float(mass) if mass else None,
                 center_of_mass=np.array(com) if com is not None else np.zeros(3),
                 diagonal_inertia=np.array(inertia) if inertia is not None and any(inertia) else None,
+                principal_axes=(np.array([*axes.GetImaginary(), axes.GetReal()])
+                                if axes is not None and inertia is not None and any(inertia) else None),
                 density=float(mat.GetDensityAttr().Get() or 0.0),
                 static_friction=float(mat.GetStaticFrictionAttr().Get() or 0.0),
                 dynamic_friction=float(mat.GetDynamicFrictionAttr().Get() or 0.0),
@@ -1017,6 +1057,7 @@ class SceneGraph:
             except SceneError:
                 collider_kind, collider_parts = None, 0
             resolution = prim.GetAttribute("holo:sdf:resolution").Get() if prim.HasAPI("HoloSdfAPI") else None
+            record = self.get_geometry_record(info.name) if prim.HasAPI("HoloGeometryAPI") else None
             result.nodes.append(
                 NodeSummary(
                     name=info.name,
@@ -1030,6 +1071,9 @@ class SceneGraph:
                     splats=len(positions) if positions is not None else 0,
                     mass_kg=float(mass) if mass else None,
                     dynamic=_is_dynamic(prim),
+                    fit_shift_cm=100.0 * float(np.linalg.norm(record.fit_shift)) if record else None,
+                    collider_reach_cm=100.0 * record.collider_reach if record else None,
+                    penetration_cm=100.0 * record.penetration if record else None,
                     collider=collider_kind,
                     collider_parts=collider_parts,
                 )

@@ -213,8 +213,11 @@ class PhysicsProps:
     center_of_mass: np.ndarray = field(default_factory=lambda: np.zeros(3))
     """[3] centre of mass in object coordinates, metres."""
     diagonal_inertia: np.ndarray | None = None
-    """[3] moments of inertia about the object axes (taken as principal axes), kg m^2; None: the simulator
-    derives the inertia from the colliders."""
+    """[3] principal moments of inertia about the centre of mass, kg m^2; None: the simulator derives the
+    inertia from the colliders."""
+    principal_axes: np.ndarray | None = None
+    """[4] quaternion (x, y, z, w) from the object axes to the principal axes of ``diagonal_inertia``; None:
+    the object axes."""
     density: float = 1000.0
     """Material density, kg / m^3 (mass wins where both are given, as in UsdPhysics)."""
     static_friction: float = 0.5
@@ -232,6 +235,12 @@ class PhysicsProps:
         self.center_of_mass = _array(self.center_of_mass, np.float64, (3,), "PhysicsProps.center_of_mass")
         if self.diagonal_inertia is not None:
             self.diagonal_inertia = _array(self.diagonal_inertia, np.float64, (3,), "PhysicsProps.diagonal_inertia")
+        if self.principal_axes is not None:
+            self.principal_axes = _array(self.principal_axes, np.float64, (4,), "PhysicsProps.principal_axes")
+            norm = float(np.linalg.norm(self.principal_axes))
+            if not norm > 0:
+                raise InvalidDataError("PhysicsProps.principal_axes must be a unit quaternion (x, y, z, w)")
+            self.principal_axes = self.principal_axes / norm
         for name in ("density", "static_friction", "dynamic_friction", "restitution",
                      "linear_damping", "angular_damping"):  # fmt: skip
             value = float(getattr(self, name))
@@ -327,3 +336,19 @@ class CameraData:
             )
         if self.K[0, 0] <= 0 or self.K[1, 1] <= 0:
             raise InvalidDataError(f"CameraData {self.name!r}: focal lengths must be positive")
+
+
+@dataclass(kw_only=True)
+class GeometryRecord:
+    """How an object's final geometry relates to what was observed and to its collider (``HoloGeometryAPI``)."""
+
+    fit_shift: np.ndarray
+    """[3] move of the object from the pose the fit gave it, metres (world axes)."""
+    collider_reach: float
+    """How far the collider reaches outside the rendered mesh, metres."""
+    penetration: float
+    """Deepest overlap of the rendered mesh with another node's, metres."""
+    volume: float
+    """Volume of the rendered mesh (what the mass is computed from), m^3."""
+    edits: list[str]
+    """What was done to the mesh, in order (e.g. ``clip:wall``, ``cut:base``, ``cut:neighbour:box_1``)."""

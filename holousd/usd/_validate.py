@@ -11,6 +11,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 from pxr import Sdf, Usd, UsdGeom, UsdPhysics, UsdValidation, UsdVol
 
+from holousd._errors import SceneError
 from holousd.usd._plugin import API_SCHEMAS, SCHEMA_VERSION
 from holousd.usd._scene import BACKGROUND_PATH, OBJECTS_PATH, schema_version_of
 
@@ -375,9 +376,71 @@ def validate(stage: Usd.Stage) -> ValidationReport:
     holousd's rules: root-layer metadata (upAxis Z, metersPerUnit 1, kilogramsPerUnit 1, defaultPrim /World,
     schema version); support relations form one tree rooted at the background (exactly one parent each, no
     cycles, no dangling targets); each object has a rigid body, a positive mass and a collider; SDF and splat
-    assets resolve; splat array lengths agree with each other and with the bound mesh.
+    assets resolve; splat array lengths agree with each other and with the bound mesh; every object's rendered
+    mesh is watertight, its collider reaches at most 1 cm outside it, and no two objects' meshes overlap by more
+    than 1 cm^3.
     """
     report = ValidationReport(scene=stage.GetRootLayer().identifier)
-    for rules in (_usd_validators, _metadata_rules, _schema_rules, _support_rules, _physics_rules, _asset_rules):
+    for rules in (_usd_validators, _metadata_rules, _schema_rules, _support_rules, _physics_rules, _asset_rules,
+                  _geometry_rules):  # fmt: skip
         report.issues.extend(rules(stage))
     return report
+
+
+MAX_COLLIDER_REACH = 0.01
+"""A collider may reach at most this far outside its object's rendered mesh, metres."""
+MAX_OVERLAP = 1e-6
+"""Two objects' rendered meshes may overlap by at most this volume, m^3 (1 cm^3)."""
+
+
+def _geometry_rules(stage: Usd.Stage) -> list[ValidationIssue]:
+    """One geometry per object: a watertight rendered mesh, a collider that stays within
+    :data:`MAX_COLLIDER_REACH` of it, and no two objects' meshes overlapping by more than :data:`MAX_OVERLAP`."""
+    from holousd.geometry._contact import collider_reach, overlap
+    from holousd.usd._scene import SceneGraph
+
+    scene = SceneGraph(stage)
+    world: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    issues = []
+    for name in scene.objects():
+        prim = scene.stage.GetPrimAtPath(scene.node_info(name).path)
+        try:
+            mesh = scene.get_mesh(name)
+        except SceneError:
+            continue  # _physics_rules / the schema rules say what is missing
+        if len(mesh.faces) == 0:
+            continue
+        if not _watertight(mesh):
+            issues.append(_err("watertight", f"{prim.GetPath()}/Geom", "the rendered mesh is not watertight (it "
+                               "has holes or non-manifold edges), so it has no volume, mass or inside",
+                               "close it (re-mesh its SDF) before simulating"))  # fmt: skip
+        try:
+            collider = scene.get_collider(name)
+        except SceneError:
+            collider = None
+        if collider is not None and collider.approximation != "none":
+            reach = collider_reach([(p.points, p.faces) for p in collider.parts], (mesh.points, mesh.faces),
+                                   samples=500)  # fmt: skip
+            if reach > MAX_COLLIDER_REACH:
+                issues.append(_err("collider-reach", f"{prim.GetPath()}/Collision",
+                                   f"the collider reaches {100 * reach:.1f} cm outside the rendered mesh (at most "
+                                   f"{100 * MAX_COLLIDER_REACH:.0f} cm): the simulated object is not the one shown",
+                                   "derive the collider from the mesh (its hull, or a decomposition of it), or "
+                                   "edit the mesh itself"))  # fmt: skip
+        world[name] = (scene.get_pose(name).apply(mesh.points), mesh.faces)
+    names = sorted(world)
+    for i, a in enumerate(names):
+        for b in names[i + 1 :]:
+            both = overlap(world[a], world[b])
+            if both.volume_m3 > MAX_OVERLAP:
+                issues.append(_err("overlap", f"{OBJECTS_PATH}/{a}, {OBJECTS_PATH}/{b}",
+                                   f"the rendered meshes of {a} and {b} overlap by {1e6 * both.volume_m3:.1f} cm^3 "
+                                   f"(up to {100 * both.depth_m:.1f} cm deep): a simulator throws them apart",
+                                   "cut them apart where they meet (holousd reconstruct's physics set-up does)"))
+    return issues
+
+
+def _watertight(mesh) -> bool:  # noqa: ANN001 - MeshData
+    import trimesh
+
+    return bool(trimesh.Trimesh(vertices=mesh.points, faces=mesh.faces, process=False).is_watertight)

@@ -1,0 +1,201 @@
+"""Mesh-level contact geometry: plane and solid cuts, overlaps, collider reach, mass properties.
+
+Everything the physics set-up does so that an object can stand is done here, to the rendered mesh itself (never
+to a collider alone): cuts by planes (a flat base, a flat top, a wall, the mid-plane between two neighbours) and
+subtractions of another solid (whatever of a neighbour lies inside it). The collider is then derived from the
+final mesh and measured against it (:func:`collider_reach`). Meshes are ``(points [N, 3], faces [F, 3])`` pairs
+in one frame (world coordinates unless said otherwise); solids go through manifold3d, which needs closed
+manifolds: a mesh it cannot read is returned unchanged and the function says so.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = [
+    "MassProperties",
+    "collider_reach",
+    "cut_by_plane",
+    "mass_properties",
+    "overlap",
+    "subtract",
+]
+
+Mesh = tuple[np.ndarray, np.ndarray]
+
+
+def _solid(mesh: Mesh):  # noqa: ANN202 - manifold3d.Manifold | None
+    import manifold3d
+
+    points, faces = mesh
+    if len(faces) == 0:
+        return None
+    solid = manifold3d.Manifold(manifold3d.Mesh(vert_properties=np.asarray(points, np.float32),
+                                                tri_verts=np.asarray(faces, np.uint32)))  # fmt: skip
+    if solid.status() != manifold3d.Error.NoError or solid.is_empty():
+        return None
+    return solid
+
+
+def _mesh(solid) -> Mesh:  # noqa: ANN001
+    out = solid.to_mesh()
+    return np.asarray(out.vert_properties[:, :3], np.float64), np.asarray(out.tri_verts, np.int64)
+
+
+def _largest(solid):  # noqa: ANN001, ANN202
+    """The largest connected piece of a solid (a cut can leave slivers behind)."""
+    pieces = solid.decompose()
+    return max(pieces, key=lambda p: p.volume()) if len(pieces) > 1 else solid
+
+
+def cut_by_plane(mesh: Mesh, normal: np.ndarray, offset: float, *, min_keep: float = 0.2) -> tuple[Mesh, float]:
+    """Keep the part of a closed mesh where ``normal . x >= offset``; returns the mesh and the volume removed.
+
+    The mesh comes back unchanged (0 removed) when it is not a closed manifold, when the plane misses it, or when
+    less than ``min_keep`` of its volume would be left (the plane is then not a face of this object).
+    """
+    solid = _solid(mesh)
+    if solid is None:
+        return mesh, 0.0
+    before = solid.volume()
+    kept = solid.trim_by_plane(tuple(float(v) for v in normal), float(offset))
+    if kept.is_empty() or kept.volume() < min_keep * before:
+        return mesh, 0.0
+    removed = before - kept.volume()
+    if removed <= 1e-12:
+        return mesh, 0.0
+    kept = _largest(kept)
+    return _mesh(kept), float(before - kept.volume())
+
+
+def subtract(mesh: Mesh, other: Mesh | list[Mesh], *, min_keep: float = 0.5) -> tuple[Mesh, float]:
+    """``mesh`` minus the solid(s) ``other`` (the largest piece left); returns the mesh and the volume removed.
+
+    Unchanged when either is not a closed manifold, when they do not overlap, or when less than ``min_keep`` of
+    the mesh's volume would be left (``other`` is then no neighbour that merely overlaps it).
+    """
+    solid = _solid(mesh)
+    if solid is None:
+        return mesh, 0.0
+    others = other if isinstance(other, list) else [other]
+    before = solid.volume()
+    result = solid
+    for o in others:
+        cutter = _solid(o)
+        if cutter is not None:
+            result = result - cutter
+    if result.is_empty() or result.volume() < min_keep * before or before - result.volume() <= 1e-12:
+        return mesh, 0.0
+    result = _largest(result)
+    return _mesh(result), float(before - result.volume())
+
+
+@dataclass(kw_only=True)
+class Overlap:
+    """The intersection of two solids."""
+
+    volume_m3: float
+    """Volume of the intersection, m^3 (0 when they do not overlap)."""
+    depth_m: float
+    """Thickness of the intersection along its thinnest axis (how far one reaches into the other), metres."""
+    lo: np.ndarray
+    """[3] lower corner of the intersection's bounding box, metres."""
+    hi: np.ndarray
+    """[3] upper corner of the intersection's bounding box, metres."""
+
+
+def overlap(a: Mesh, b: Mesh, *, min_volume: float = 1e-9) -> Overlap:
+    """The intersection of two closed meshes (manifold3d); zero when either is not a closed manifold or the
+    intersection is smaller than ``min_volume`` (m^3; 0.001 cm^3: the slivers two faces that touch leave)."""
+    none = Overlap(volume_m3=0.0, depth_m=0.0, lo=np.zeros(3), hi=np.zeros(3))
+    pa, pb = np.asarray(a[0]), np.asarray(b[0])
+    if len(pa) == 0 or len(pb) == 0 or np.any(pa.min(0) > pb.max(0)) or np.any(pb.min(0) > pa.max(0)):
+        return none
+    sa, sb = _solid(a), _solid(b)
+    if sa is None or sb is None:
+        return none
+    both = sa ^ sb
+    if both.is_empty() or both.volume() < min_volume:
+        return none
+    box = np.asarray(both.bounding_box(), float).reshape(2, 3)
+    return Overlap(volume_m3=float(both.volume()), depth_m=float((box[1] - box[0]).min()), lo=box[0], hi=box[1])
+
+
+def collider_reach(parts: list[Mesh], mesh: Mesh, *, samples: int = 2000, seed: int = 0) -> float:
+    """How far a collider reaches outside the mesh it stands for: the largest distance from a point of the
+    collider's surface (its vertices and ``samples`` area-weighted surface samples) that lies outside the mesh
+    to the mesh, metres. 0 when the collider stays inside the mesh."""
+    import trimesh
+
+    target = trimesh.Trimesh(vertices=mesh[0], faces=mesh[1], process=False)
+    rng = np.random.default_rng(seed)
+    points = []
+    areas = []
+    for p, f in parts:
+        tri = np.asarray(p, float)[np.asarray(f, np.int64)]
+        areas.append(0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1))
+        points.append(np.asarray(p, float))
+    total = sum(float(a.sum()) for a in areas)
+    for (p, f), area in zip(parts, areas, strict=True):
+        if total <= 0 or area.sum() <= 0:
+            continue
+        count = max(1, int(round(samples * float(area.sum()) / total)))
+        tri = np.asarray(p, float)[np.asarray(f, np.int64)]
+        pick = rng.choice(len(tri), size=count, p=area / area.sum())
+        r = rng.random((count, 2))
+        flip = r.sum(1) > 1
+        r[flip] = 1 - r[flip]
+        t = tri[pick]
+        points.append(t[:, 0] + r[:, :1] * (t[:, 1] - t[:, 0]) + r[:, 1:] * (t[:, 2] - t[:, 0]))
+    if not points:
+        return 0.0
+    pts = np.concatenate(points)
+    closest, distance, triangle = trimesh.proximity.closest_point(target, pts)
+    # outside when the point lies on the front side of the face it is closest to (the face-normal sign test;
+    # ray-parity containment costs 20x more on fitted meshes)
+    front = np.einsum("ij,ij->i", pts - closest, target.face_normals[triangle]) > 0
+    outside = distance[front]
+    return float(outside.max()) if len(outside) else 0.0
+
+
+@dataclass(kw_only=True)
+class MassProperties:
+    """Volume, centre of mass and inertia of a solid of uniform density."""
+
+    volume_m3: float
+    """Volume, m^3."""
+    mass_kg: float
+    """density x volume, kg."""
+    center_of_mass: np.ndarray
+    """[3] centre of mass, metres (the mesh's frame)."""
+    diagonal_inertia: np.ndarray
+    """[3] principal moments of inertia about the centre of mass, kg m^2."""
+    principal_axes: np.ndarray
+    """[4] quaternion (x, y, z, w) rotating the mesh's axes onto the principal axes."""
+
+
+def mass_properties(mesh: Mesh, density: float) -> MassProperties:
+    """Mass properties of a closed mesh of uniform ``density`` (kg / m^3); of its convex hull when it is not
+    closed (what a simulator would then do)."""
+    import trimesh
+    from scipy.spatial.transform import Rotation
+
+    tm = trimesh.Trimesh(vertices=mesh[0], faces=mesh[1], process=False)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        if not tm.is_watertight or not tm.volume > 0:
+            tm = tm.convex_hull
+        tm.density = float(density)
+        volume = float(abs(tm.volume))
+        com = np.asarray(tm.center_mass, float)
+        inertia = np.asarray(tm.moment_inertia, float)  # [3, 3] about the centre of mass, mesh axes
+    if not (volume > 0 and np.all(np.isfinite(com)) and np.all(np.isfinite(inertia))):
+        return MassProperties(volume_m3=0.0, mass_kg=0.0, center_of_mass=np.asarray(mesh[0], float).mean(0),
+                              diagonal_inertia=np.zeros(3), principal_axes=np.array([0.0, 0.0, 0.0, 1.0]))  # fmt: skip
+    moments, axes = np.linalg.eigh(0.5 * (inertia + inertia.T))
+    if np.linalg.det(axes) < 0:
+        axes[:, 2] = -axes[:, 2]
+    return MassProperties(volume_m3=volume, mass_kg=float(density) * volume, center_of_mass=com,
+                          diagonal_inertia=np.maximum(moments, 0.0),
+                          principal_axes=Rotation.from_matrix(axes).as_quat())  # fmt: skip

@@ -1,0 +1,226 @@
+"""The one-geometry physics set-up (holousd.stages._physics_one, opt-in: PhysicsSetupConfig(one_geometry=True)):
+its mesh edits on hand-made scenes, the collider derived from the final mesh, the records, and negative controls
+that must fall (and a positive one that must stand) in both solvers."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from holousd.geometry._contact import collider_reach, cut_by_plane, mass_properties, overlap, subtract
+from holousd.stages._physics_one import PhysicsSetupConfig, setup_physics
+from holousd.usd import BACKGROUND, MeshData, Pose, SceneGraph
+
+
+def _box(lo: tuple[float, float, float], hi: tuple[float, float, float]) -> tuple[np.ndarray, np.ndarray]:
+    t = trimesh.creation.box(bounds=np.array([lo, hi], float))
+    return np.asarray(t.vertices, float), np.asarray(t.faces)
+
+
+def _union(*meshes: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    tm = trimesh.boolean.union([trimesh.Trimesh(vertices=p, faces=f) for p, f in meshes], engine="manifold")
+    return np.asarray(tm.vertices, float), np.asarray(tm.faces)
+
+
+def _ball(centre: tuple[float, float, float], radius: float) -> tuple[np.ndarray, np.ndarray]:
+    t = trimesh.creation.icosphere(subdivisions=2, radius=radius)
+    return np.asarray(t.vertices) + centre, np.asarray(t.faces)
+
+
+ROOM = _union(_box((-2, -2, -0.1), (2, 2, 0.0)), _box((-2, 1.9, 0.0), (2, 2.0, 2.5)))
+"""A floor (top at z = 0) and one wall (inner face at y = 1.9, facing -y)."""
+
+
+def _scene(tmp_path: Path, objects: dict[str, tuple[np.ndarray, np.ndarray]]) -> SceneGraph:
+    """A fitted-looking scene: each object's world mesh stored in object coordinates (origin at its bottom
+    centre, pose = that translation), the room as the background mesh."""
+    scene = SceneGraph.create(tmp_path / "10_fit.usda")
+    scene.add_background(instance_id=0)
+    scene.set_mesh(BACKGROUND, MeshData(points=ROOM[0], faces=ROOM[1]))
+    for k, (name, (points, faces)) in enumerate(objects.items(), start=1):
+        lo, hi = points.min(0), points.max(0)
+        origin = np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, lo[2]])
+        scene.add_object(name, instance_id=k, pose=Pose(translation=origin))
+        scene.set_mesh(name, MeshData(points=points - origin, faces=faces))
+    scene.save()
+    return scene
+
+
+def _world(scene: SceneGraph, name: str) -> np.ndarray:
+    return scene.get_pose(name).apply(scene.get_mesh(name).points)
+
+
+def _records(result) -> dict:  # noqa: ANN001
+    return {o.name: o for o in result.objects}
+
+
+# ----------------------------------------------------------------------------------------------- helpers
+def test_contact_helpers_on_boxes() -> None:
+    a = _box((0, 0, 0), (1, 1, 1))
+    (p, _), removed = cut_by_plane(a, np.array([0.0, 0.0, 1.0]), 0.25)
+    assert p[:, 2].min() == pytest.approx(0.25) and removed == pytest.approx(0.25)
+    b = _box((0.9, 0.2, 0.2), (1.5, 0.4, 0.4))
+    both = overlap(a, b)
+    assert both.volume_m3 == pytest.approx(0.1 * 0.2 * 0.2) and both.depth_m == pytest.approx(0.1)
+    (q, _), removed = subtract(b, a)
+    assert q[:, 0].min() == pytest.approx(1.0) and removed == pytest.approx(0.004)
+    assert overlap(a, _box((2, 2, 2), (3, 3, 3))).volume_m3 == 0.0
+    props = mass_properties(_box((0, 0, 0), (0.2, 0.4, 0.6)), density=500.0)
+    m = 500.0 * 0.048
+    assert props.mass_kg == pytest.approx(m) and props.center_of_mass == pytest.approx([0.1, 0.2, 0.3])
+    expected = sorted([m / 12 * (0.4**2 + 0.6**2), m / 12 * (0.2**2 + 0.6**2), m / 12 * (0.2**2 + 0.4**2)])
+    assert sorted(props.diagonal_inertia) == pytest.approx(expected)
+
+
+def test_collider_reach_measures_what_the_hull_adds() -> None:
+    ell = _union(_box((0, 0, 0), (0.4, 0.1, 0.1)), _box((0, 0, 0.1), (0.1, 0.1, 0.4)))  # an L
+    hull = trimesh.Trimesh(*ell).convex_hull
+    reach = collider_reach([(np.asarray(hull.vertices), np.asarray(hull.faces))], ell)
+    assert 0.1 < reach < 0.15  # the hull bridges the L's inner corner: ~0.3 / (2 sqrt 2) from it
+    box = _box((0, 0, 0), (0.3, 0.2, 0.1))
+    assert collider_reach([box], box) < 1e-6
+
+
+# ----------------------------------------------------------------------------------------------- the stage
+def test_supports_and_children_rest_on_their_rendered_meshes(tmp_path: Path) -> None:
+    objects = {
+        "table": _box((-0.3, -0.3, -0.011), (0.3, 0.3, 0.5)),  # sunk 1.1 cm into the floor, as fits come out
+        "book": _box((-0.1, -0.1, 0.504), (0.1, 0.1, 0.534)),  # floats 4 mm above the table
+        "ball": _ball((1.0, 0.0, 0.05), 0.05),  # touches the floor at one point
+        "crate": _box((-1.0, 1.7, 0.0), (-0.8, 1.95, 0.2)),  # runs 5 cm into the wall
+    }
+    scene = _scene(tmp_path, objects)
+    result = setup_physics(scene, PhysicsSetupConfig())
+    rec = _records(result)
+    assert {o.name: o.parent for o in result.objects} == {"table": BACKGROUND, "book": "table", "ball": BACKGROUND,
+                                                          "crate": BACKGROUND}  # fmt: skip
+    table, book, ball, crate = (_world(scene, n) for n in ("table", "book", "ball", "crate"))
+    assert table[:, 2].min() == pytest.approx(0.001, abs=1e-5)  # cut flat on the floor, not lifted
+    assert rec["table"].settled_m == [0.0, 0.0, 0.0] and "cut:base" in rec["table"].edits
+    assert table[:, 2].max() == pytest.approx(0.5, abs=1e-5)  # its flat top is not cut
+    assert book[:, 2].min() == pytest.approx(0.501, abs=1e-5)  # set down 3 mm onto the table
+    assert rec["book"].settled_m[2] == pytest.approx(-0.003, abs=1e-5) and rec["book"].settled_m[:2] == [0, 0]
+    footprint = ball[np.abs(ball[:, 2] - ball[:, 2].min()) < 1e-6]
+    assert np.ptp(footprint[:, 0]) > 0.04  # a flat disc half the ball's width: it does not roll
+    assert abs(rec["ball"].settled_m[2]) <= 0.01 and ball[:, 2].min() == pytest.approx(0.001, abs=1e-5)
+    assert crate[:, 1].max() == pytest.approx(1.899, abs=1e-5) and "clip:wall" in rec["crate"].edits
+    for o in result.objects:
+        assert o.collider == "hull" and o.collider_reach_m < 0.005 and o.penetration_m < 1e-4, o
+        assert np.linalg.norm(o.settled_m) <= 0.01
+        assert trimesh.Trimesh(*_world_mesh(scene, o.name), process=False).is_watertight
+    record = scene.get_geometry_record("book")
+    assert record.fit_shift[2] == pytest.approx(-0.003, abs=1e-5) and record.edits == rec["book"].edits
+    collider = scene.get_collider("table").parts[0]
+    assert collider.points[:, 2].min() == pytest.approx(scene.get_mesh("table").points[:, 2].min())  # one geometry
+
+
+def _world_mesh(scene: SceneGraph, name: str) -> tuple[np.ndarray, np.ndarray]:
+    return _world(scene, name), scene.get_mesh(name).faces
+
+
+def test_a_shift_beyond_what_the_observations_allow_is_refused(tmp_path: Path) -> None:
+    scene = _scene(tmp_path, {"box": _box((0, 0, 0.03), (0.2, 0.2, 0.2))})  # 3 cm above the floor
+    (rec,) = setup_physics(scene, PhysicsSetupConfig()).objects
+    assert rec.settled_m == [0.0, 0.0, 0.0] and rec.shift_refused_m == pytest.approx(0.029, abs=1e-4)
+    assert _world(scene, "box")[:, 2].min() == pytest.approx(0.03)  # left where the cameras saw it
+
+
+def test_overlapping_neighbours_are_cut_apart_and_the_sdf_follows(tmp_path: Path) -> None:
+    from holousd.geometry import box_sdf
+    from holousd.usd import SdfField
+
+    scene = _scene(tmp_path, {"left": _box((0, 0, 0), (0.4, 0.4, 0.4)), "right": _box((0.38, 0.1, 0), (0.5, 0.2, 0.1))})
+    for name in ("left", "right"):
+        mesh = scene.get_mesh(name)
+        lo, hi = mesh.points.min(0), mesh.points.max(0)
+        voxel = 0.01
+        origin = lo - 2 * voxel
+        shape = tuple(int(v) for v in np.ceil((hi - lo) / voxel) + 5)
+        axes = [origin[i] + voxel * np.arange(shape[i]) for i in range(3)]
+        grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+        sdf = box_sdf(grid, lo, hi).reshape(shape)
+        scene.set_sdf(name, SdfField(grid=sdf, origin=origin, voxel_size=voxel))
+    scene.save()
+    rec = _records(setup_physics(scene, PhysicsSetupConfig()))
+    left, right = _world(scene, "left"), _world(scene, "right")
+    assert left[:, 0].max() == pytest.approx(0.3895, abs=1e-5) and right[:, 0].min() == pytest.approx(0.3905, abs=1e-5)
+    assert rec["left"].penetration_m == 0.0 and "cut:neighbour:right" in rec["left"].edits
+    sdf = scene.get_sdf("left")
+    pose = scene.get_pose("left")
+    probe = np.array([0.395, 0.15, 0.05]) - pose.translation  # in the cut-off slice: now outside
+    idx = np.rint((probe - sdf.origin) / sdf.voxel_size).astype(int)
+    assert sdf.grid[tuple(idx)] > 0
+
+
+def test_a_concave_object_gets_a_decomposition_of_its_mesh(tmp_path: Path) -> None:
+    shelf = _union(_box((0, 0, 0), (0.6, 0.3, 0.02)), _box((0, 0, 0.5), (0.6, 0.3, 0.52)),
+                   _box((0, 0, 0), (0.02, 0.3, 0.52)), _box((0.58, 0, 0), (0.6, 0.3, 0.52)))  # fmt: skip
+    scene = _scene(tmp_path, {"shelf": shelf})
+    (rec,) = setup_physics(scene, PhysicsSetupConfig()).objects
+    assert rec.collider == "decomposition" and rec.parts >= 2 and rec.collider_reach_m < 0.03
+
+
+# ----------------------------------------------------------------------------------------------- negative controls
+def _verdicts(scene: SceneGraph) -> dict[str, tuple[bool, bool]]:
+    from holousd.physics import stability
+
+    report = stability(scene.stage, cross_check="mujoco")
+    xpbd = {o.name.rsplit("/", 1)[-1]: o.stable for o in report.objects}
+    mujoco = {o.name.rsplit("/", 1)[-1]: o.stable for o in report.cross_check.objects}
+    return {k: (xpbd[k], mujoco[k]) for k in xpbd}
+
+
+_TOP = _box((-0.4, -0.3, 0.7), (0.4, 0.3, 0.74))
+_NEAR_LEGS = _union(_TOP, _box((-0.4, -0.3, -0.005), (-0.35, -0.25, 0.7)),
+                    _box((-0.4, 0.25, -0.005), (-0.35, 0.3, 0.7)))  # the far legs were never seen
+
+
+@pytest.mark.parametrize("case", ["stands", "overhang", "cantilever", "slope", "thin-edge", "table-far-legs-unseen"])
+def test_what_cannot_stand_falls_through_the_set_up(case: str, tmp_path: Path) -> None:
+    objects = {
+        "stands": {"base": _box((-0.2, -0.2, -0.005), (0.2, 0.2, 0.3)),
+                   "top": _box((-0.1, -0.1, 0.302), (0.1, 0.1, 0.4))},
+        "overhang": {"base": _box((-0.2, -0.2, -0.005), (0.2, 0.2, 0.3)),
+                     "top": _box((0.12, -0.1, 0.302), (0.5, 0.1, 0.35))},  # centre of mass 11 cm past the edge
+        "cantilever": {"base": _box((-0.1, -0.1, -0.005), (0.1, 0.1, 0.5)),
+                       "top": _box((0.0, -0.05, 0.502), (0.8, 0.05, 0.53))},
+        "slope": {"ramp": _slope(), "ball": _ball((0.0, 0.0, 0.0), 0.05)},
+        "thin-edge": {"post": _box((-0.01, -0.2, -0.005), (0.01, 0.2, 0.4)),
+                      "plate": _box((-0.12, -0.15, 0.402), (0.18, 0.15, 0.42))},  # centre 3 cm past the edge
+        "table-far-legs-unseen": {"table": _NEAR_LEGS},
+    }[case]
+    if case == "slope":
+        objects["ball"] = _on_slope(objects["ramp"], 0.05)
+    scene = _scene(tmp_path, objects)
+    setup_physics(scene, PhysicsSetupConfig())
+    verdicts = _verdicts(scene)
+    falls = {"stands": set(), "overhang": {"top"}, "cantilever": {"top"}, "slope": {"ball"}, "thin-edge": {"plate"},
+             "table-far-legs-unseen": {"table"}}[case]  # fmt: skip
+    for name, (xpbd, mujoco) in verdicts.items():
+        want = name not in falls
+        assert xpbd == want and mujoco == want, (case, verdicts)
+
+
+SLOPE = 30.0
+"""Degrees: steeper than friction 0.5 holds anything (26.6), whatever its base."""
+
+
+def _slope() -> tuple[np.ndarray, np.ndarray]:
+    """A wedge rising SLOPE degrees along +x."""
+    run, rise = 0.8, 0.8 * np.tan(np.radians(SLOPE))
+    pts = np.array([[-0.4, -0.3, -0.005], [0.4, -0.3, -0.005], [0.4, -0.3, rise], [-0.4, 0.3, -0.005],
+                    [0.4, 0.3, -0.005], [0.4, 0.3, rise]], float)  # fmt: skip
+    hull = trimesh.convex.convex_hull(pts)
+    assert run > 0
+    return np.asarray(hull.vertices, float), np.asarray(hull.faces)
+
+
+def _on_slope(ramp: tuple[np.ndarray, np.ndarray], radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """A ball resting on the wedge's slope above its middle."""
+    angle = np.radians(SLOPE)
+    normal = np.array([-np.sin(angle), 0.0, np.cos(angle)])
+    surface = np.array([0.0, 0.0, 0.4 * np.tan(angle)])
+    return _ball(tuple(surface + normal * (radius + 0.002)), radius)
