@@ -744,6 +744,7 @@ def setup_physics(scene: SceneGraph, config: PhysicsSetupConfig | None = None,
             scene.set_collider(BACKGROUND, Collider(approximation="none", parts=[background]))
         scene.set_physics(BACKGROUND, PhysicsProps(mass=None, density=config.density, **material))
     results: list[ObjectPhysics] = []
+    settled = {n: (scene.get_pose(n).apply(m.points) + offsets[n], m.faces) for n, m in local.items()}  # world
     for name, mesh in local.items():
         kind, parts, ratio = colliders[name]
         if np.any(offsets[name] != 0.0):
@@ -760,7 +761,7 @@ def setup_physics(scene: SceneGraph, config: PhysicsSetupConfig | None = None,
                                              diagonal_inertia=inertia, principal_axes=props.principal_axes,
                                              density=config.density, **material))  # fmt: skip
         reach = collider_reach([(p.points, p.faces) for p in parts], (mesh.points, mesh.faces), seed=config.seed)
-        penetration = _penetration(name, local, scene, offsets, slabs_world)
+        penetration = _penetration(name, settled, slabs_world)
         edits = [e for e, on in (("clip:wall", name in clipped), ("collider:cut-base", name in base_cut),
                                  ("collider:cut-top", name in top_cut), ("collider:carve", name in carved),
                                  ("collider:extend-base", name in extended), ("collider:separate", name in separated),
@@ -782,16 +783,11 @@ def setup_physics(scene: SceneGraph, config: PhysicsSetupConfig | None = None,
     return PhysicsSetupResult(scene=scene, relations=relations, objects=results, skipped=skipped)
 
 
-def _penetration(name: str, local: dict[str, MeshData], scene: SceneGraph, offsets: dict[str, np.ndarray],
-                 slabs: list[MeshData]) -> float:  # fmt: skip
-    """Deepest overlap of an object's rendered mesh (at its settled pose) with another object's or a room slab,
-    metres."""
-
-    def world(n: str) -> tuple[np.ndarray, np.ndarray]:
-        return scene.get_pose(n).apply(local[n].points) + offsets[n], local[n].faces
-
-    own = world(name)
-    depths = [overlap(own, world(other)).depth_m for other in local if other != name]
+def _penetration(name: str, settled: dict[str, tuple[np.ndarray, np.ndarray]], slabs: list[MeshData]) -> float:
+    """Deepest overlap of an object's rendered mesh (world coordinates, settled) with another object's or a
+    room slab, metres."""
+    own = settled[name]
+    depths = [overlap(own, other).depth_m for key, other in settled.items() if key != name]
     depths += [overlap(own, (s.points, s.faces)).depth_m for s in slabs]
     return float(max(depths, default=0.0))
 
