@@ -224,3 +224,43 @@ def _on_slope(ramp: tuple[np.ndarray, np.ndarray], radius: float) -> tuple[np.nd
     normal = np.array([-np.sin(angle), 0.0, np.cos(angle)])
     surface = np.array([0.0, 0.0, 0.4 * np.tan(angle)])
     return _ball(tuple(surface + normal * (radius + 0.002)), radius)
+
+
+def test_inertia_of_a_turned_box_round_trips_through_usd(tmp_path: Path) -> None:
+    from scipy.spatial.transform import Rotation
+
+    from holousd.usd import PhysicsProps
+
+    turn = Rotation.from_euler("xyz", [20, 35, 50], degrees=True).as_matrix()
+    points, faces = _box((-0.1, -0.2, -0.3), (0.1, 0.2, 0.3))
+    points = points @ turn.T
+    props = mass_properties((points, faces), density=500.0)
+    tensor = np.asarray(trimesh.Trimesh(points, faces).moment_inertia) * 500.0
+    axes = Rotation.from_quat(props.principal_axes).as_matrix()
+    assert axes @ np.diag(props.diagonal_inertia) @ axes.T == pytest.approx(tensor, rel=1e-6, abs=1e-9)
+    scene = SceneGraph.create(tmp_path / "s.usda")
+    scene.add_object("box", instance_id=1)
+    scene.set_mesh("box", MeshData(points=points, faces=faces))
+    scene.set_physics("box", PhysicsProps(mass=props.mass_kg, center_of_mass=props.center_of_mass,
+                                          diagonal_inertia=props.diagonal_inertia,
+                                          principal_axes=props.principal_axes))  # fmt: skip
+    back = scene.get_physics("box")
+    again = Rotation.from_quat(back.principal_axes).as_matrix()
+    assert again @ np.diag(back.diagonal_inertia) @ again.T == pytest.approx(tensor, rel=1e-5, abs=1e-8)
+
+
+def test_overlap_depth_and_cuts_of_turned_and_split_objects() -> None:
+    turn = trimesh.transformations.rotation_matrix(np.radians(45.0), [0, 0, 1])
+    a = trimesh.creation.box(extents=[0.4, 0.4, 0.4])
+    a.apply_transform(turn)
+    b = trimesh.creation.box(extents=[0.4, 0.4, 0.4])
+    b.apply_transform(turn)
+    b.apply_translation(0.395 * np.array([np.cos(np.radians(45)), np.sin(np.radians(45)), 0.0]))  # 5 mm deep
+    both = overlap((a.vertices, a.faces), (b.vertices, b.faces))
+    assert both.depth_m == pytest.approx(0.005, abs=1e-4)
+    legs = _union(_box((0, 0, 0.7), (1, 1, 0.75)), *(_box((x, y, 0), (x + 0.05, y + 0.05, 0.7))
+                                                     for x in (0, 0.95) for y in (0, 0.95)))  # fmt: skip
+    kept, removed = cut_by_plane(legs, np.array([0.0, 0.0, -2.0]), -1.3)  # under the top: four legs would be left
+    assert removed == 0.0 and np.array_equal(kept[0], legs[0])
+    (p, _), removed = cut_by_plane(legs, np.array([0.0, 0.0, -2.0]), -1.48)  # z <= 0.74: 1 cm off the top
+    assert p[:, 2].max() == pytest.approx(0.74) and removed == pytest.approx(0.01, rel=1e-3)

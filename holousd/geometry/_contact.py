@@ -44,37 +44,43 @@ def _mesh(solid) -> Mesh:  # noqa: ANN001
     return np.asarray(out.vert_properties[:, :3], np.float64), np.asarray(out.tri_verts, np.int64)
 
 
-def _largest(solid):  # noqa: ANN001, ANN202
-    """The largest connected piece of a solid (a cut can leave slivers behind)."""
-    pieces = solid.decompose()
-    return max(pieces, key=lambda p: p.volume()) if len(pieces) > 1 else solid
+def _one_piece(solid, before: float, min_keep: float):  # noqa: ANN001, ANN202
+    """The solid left by a cut when it is one piece (slivers under 1% of ``before`` dropped) keeping at least
+    ``min_keep`` of ``before``; None when the cut splits the object (a table cut under its top keeps four legs:
+    that is no face of the object) or keeps too little."""
+    pieces = [p for p in solid.decompose() if p.volume() >= 0.01 * before]
+    if len(pieces) != 1 or pieces[0].volume() < min_keep * before:
+        return None
+    return pieces[0]
 
 
 def cut_by_plane(mesh: Mesh, normal: np.ndarray, offset: float, *, min_keep: float = 0.2) -> tuple[Mesh, float]:
     """Keep the part of a closed mesh where ``normal . x >= offset``; returns the mesh and the volume removed.
 
-    The mesh comes back unchanged (0 removed) when it is not a closed manifold, when the plane misses it, or when
-    less than ``min_keep`` of its volume would be left (the plane is then not a face of this object).
+    The mesh comes back unchanged (0 removed) when it is not a closed manifold, when the plane misses it, when
+    what is left falls apart into pieces, or when less than ``min_keep`` of its volume would be left (the plane
+    is then not a face of this object).
     """
     solid = _solid(mesh)
-    if solid is None:
+    norm = float(np.linalg.norm(normal))
+    if solid is None or not norm > 0:
         return mesh, 0.0
     before = solid.volume()
-    kept = solid.trim_by_plane(tuple(float(v) for v in normal), float(offset))
-    if kept.is_empty() or kept.volume() < min_keep * before:
+    kept = solid.trim_by_plane(tuple(float(v) / norm for v in normal), float(offset) / norm)
+    if kept.is_empty() or before - kept.volume() <= 1e-12:
         return mesh, 0.0
-    removed = before - kept.volume()
-    if removed <= 1e-12:
+    kept = _one_piece(kept, before, min_keep)
+    if kept is None:
         return mesh, 0.0
-    kept = _largest(kept)
     return _mesh(kept), float(before - kept.volume())
 
 
 def subtract(mesh: Mesh, other: Mesh | list[Mesh], *, min_keep: float = 0.5) -> tuple[Mesh, float]:
     """``mesh`` minus the solid(s) ``other`` (the largest piece left); returns the mesh and the volume removed.
 
-    Unchanged when either is not a closed manifold, when they do not overlap, or when less than ``min_keep`` of
-    the mesh's volume would be left (``other`` is then no neighbour that merely overlaps it).
+    Unchanged when either is not a closed manifold, when they do not overlap, when what is left falls apart, or
+    when less than ``min_keep`` of the mesh's volume would be left (``other`` is then no neighbour that merely
+    overlaps it).
     """
     solid = _solid(mesh)
     if solid is None:
@@ -86,9 +92,11 @@ def subtract(mesh: Mesh, other: Mesh | list[Mesh], *, min_keep: float = 0.5) -> 
         cutter = _solid(o)
         if cutter is not None:
             result = result - cutter
-    if result.is_empty() or result.volume() < min_keep * before or before - result.volume() <= 1e-12:
+    if result.is_empty() or before - result.volume() <= 1e-12:
         return mesh, 0.0
-    result = _largest(result)
+    result = _one_piece(result, before, min_keep)
+    if result is None:
+        return mesh, 0.0
     return _mesh(result), float(before - result.volume())
 
 
@@ -99,11 +107,14 @@ class Overlap:
     volume_m3: float
     """Volume of the intersection, m^3 (0 when they do not overlap)."""
     depth_m: float
-    """Thickness of the intersection along its thinnest axis (how far one reaches into the other), metres."""
+    """Thickness of the intersection across its thinnest principal direction (how far one reaches into the
+    other, whatever the objects' orientation), metres."""
     lo: np.ndarray
     """[3] lower corner of the intersection's bounding box, metres."""
     hi: np.ndarray
     """[3] upper corner of the intersection's bounding box, metres."""
+    thin_axis: np.ndarray | None = None
+    """[3] unit direction along which the intersection is thinnest (None when there is none)."""
 
 
 def overlap(a: Mesh, b: Mesh, *, min_volume: float = 1e-9) -> Overlap:
@@ -120,16 +131,28 @@ def overlap(a: Mesh, b: Mesh, *, min_volume: float = 1e-9) -> Overlap:
     if both.is_empty() or both.volume() < min_volume:
         return none
     box = np.asarray(both.bounding_box(), float).reshape(2, 3)
-    return Overlap(volume_m3=float(both.volume()), depth_m=float((box[1] - box[0]).min()), lo=box[0], hi=box[1])
+    points = _mesh(both)[0]
+    centred = points - points.mean(0)
+    _, _, axes = np.linalg.svd(centred, full_matrices=False)  # rows: principal directions of the intersection
+    extents = np.ptp(centred @ axes.T, axis=0)
+    depth = float(min(extents.min(), (box[1] - box[0]).min()))  # thinnest across any of its principal axes
+    return Overlap(volume_m3=float(both.volume()), depth_m=depth, lo=box[0], hi=box[1],
+                   thin_axis=axes[int(np.argmin(extents))])
 
 
-def collider_reach(parts: list[Mesh], mesh: Mesh, *, samples: int = 2000, seed: int = 0) -> float:
+def collider_reach(parts: list[Mesh], mesh: Mesh, *, samples: int = 2000, seed: int = 0,
+                   hulls: bool = False) -> float:  # fmt: skip
     """How far a collider reaches outside the mesh it stands for: the largest distance from a point of the
     collider's surface (its vertices and ``samples`` area-weighted surface samples) that lies outside the mesh
-    to the mesh, metres. 0 when the collider stays inside the mesh."""
+    to the mesh, metres. 0 when the collider stays inside the mesh. ``hulls``: measure the convex hull of each
+    part (what a simulator builds from a part authored with approximation convexHull)."""
     import trimesh
 
+    if hulls:
+        parts = [(np.asarray(h.vertices), np.asarray(h.faces))
+                 for h in (trimesh.convex.convex_hull(np.asarray(p, float)) for p, _ in parts)]  # fmt: skip
     target = trimesh.Trimesh(vertices=mesh[0], faces=mesh[1], process=False)
+    orientation = 1.0 if target.volume >= 0 else -1.0  # an inside-out mesh has its normals pointing in
     rng = np.random.default_rng(seed)
     points = []
     areas = []
@@ -155,8 +178,16 @@ def collider_reach(parts: list[Mesh], mesh: Mesh, *, samples: int = 2000, seed: 
     closest, distance, triangle = trimesh.proximity.closest_point(target, pts)
     # outside when the point lies on the front side of the face it is closest to (the face-normal sign test;
     # ray-parity containment costs 20x more on fitted meshes)
-    front = np.einsum("ij,ij->i", pts - closest, target.face_normals[triangle]) > 0
-    outside = distance[front]
+    off = distance > 1e-6
+    side = orientation * np.einsum("ij,ij->i", pts - closest, target.face_normals[triangle])
+    is_outside = side > 0
+    # closest to an edge or a corner the face's normal says little (straight out from an edge it is at 90
+    # degrees to the offset): those few points get the ray-parity test
+    unsure = off & (np.abs(side) < 0.5 * distance)
+    if unsure.any() and target.is_watertight:
+        with np.errstate(invalid="ignore", divide="ignore"):
+            is_outside[unsure] = ~target.contains(pts[unsure])
+    outside = distance[off & is_outside]
     return float(outside.max()) if len(outside) else 0.0
 
 

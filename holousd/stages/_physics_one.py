@@ -98,6 +98,8 @@ class PhysicsSetupConfig:
     """Cut apart neighbours whose meshes overlap, at the middle of the overlap."""
     min_overlap: float = 1e-7
     """Overlaps smaller than this are left alone (touching, not intersecting), m^3 (0.1 cm^3)."""
+    max_separation_loss: float = 0.3
+    """A cut between neighbours may remove at most this fraction of an object's volume (else it is not made)."""
     max_parts: int = 8
     """Most convex parts of a decomposition."""
     decomposition_iterations: int | None = 20
@@ -140,12 +142,14 @@ class _Body:
         pose = Pose(translation=np.asarray(self.pose.translation, float) + shift, orientation=self.pose.orientation)
         return replace(self, pose=pose)
 
-    def cut(self, normal: np.ndarray, offset: float, edit: str) -> _Body:
-        """The body with what lies where ``normal . x < offset`` (world) removed from its mesh and SDF."""
+    def cut(self, normal: np.ndarray, offset: float, edit: str, *, min_keep: float = 0.2) -> _Body:
+        """The body with what lies where ``normal . x < offset`` (world; ``normal`` a unit vector) removed from
+        its mesh and SDF; unchanged when less than ``min_keep`` of it would be left or it would fall apart."""
         rotation = self.pose.matrix()[:3, :3]
         n_obj = rotation.T @ np.asarray(normal, float)
         off_obj = float(offset) - float(np.asarray(normal, float) @ np.asarray(self.pose.translation, float))
-        (points, faces), removed = cut_by_plane((self.mesh.points, self.mesh.faces), n_obj, off_obj)
+        (points, faces), removed = cut_by_plane((self.mesh.points, self.mesh.faces), n_obj, off_obj,
+                                                min_keep=min_keep)  # fmt: skip
         if removed <= 0:
             return self
         sdf = self.sdf
@@ -339,13 +343,13 @@ def _separate(bodies: dict[str, _Body], relations: Relations, config: PhysicsSet
             both = overlap(out[a].world(), out[b].world())
             if both.volume_m3 < config.min_overlap:
                 continue
-            axis = int(np.argmin(both.hi - both.lo))
-            mid = float((both.lo[axis] + both.hi[axis]) / 2)
+            direction = both.thin_axis if both.thin_axis is not None else np.eye(3)[int(np.argmin(both.hi - both.lo))]
+            mid = float(direction @ (both.lo + both.hi) / 2)
             for name, other in ((a, b), (b, a)):
-                side = 1.0 if float(out[name].world()[0][:, axis].mean()) >= mid else -1.0
-                normal = np.zeros(3)
-                normal[axis] = side
-                out[name] = out[name].cut(normal, side * (mid + side * config.clearance / 2), f"cut:neighbour:{other}")
+                centre = mass_properties(out[name].world(), 1.0).center_of_mass
+                side = 1.0 if float(direction @ centre) >= mid else -1.0
+                out[name] = out[name].cut(side * direction, side * mid + config.clearance / 2, f"cut:neighbour:{other}",
+                                          min_keep=1.0 - config.max_separation_loss)  # fmt: skip
     return out
 
 

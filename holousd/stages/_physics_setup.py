@@ -734,6 +734,8 @@ def setup_physics(scene: SceneGraph, config: PhysicsSetupConfig | None = None,
             scene.set_mesh(name, cleaned)
             if name == BACKGROUND:
                 background = cleaned
+            else:
+                local[name] = cleaned  # what is authored is what the records and the mass are measured on
     slabs_world = list(slabs)
     if background is not None and len(background.faces):
         if slabs:  # world -> background coordinates (the identity for a fitted room)

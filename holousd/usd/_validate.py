@@ -420,7 +420,7 @@ def _geometry_rules(stage: Usd.Stage) -> list[ValidationIssue]:
             collider = None
         if collider is not None and collider.approximation != "none":
             reach = collider_reach([(p.points, p.faces) for p in collider.parts], (mesh.points, mesh.faces),
-                                   samples=500)  # fmt: skip
+                                   samples=500, hulls=True)  # fmt: skip
             if reach > MAX_COLLIDER_REACH:
                 issues.append(_err("collider-reach", f"{prim.GetPath()}/Collision",
                                    f"the collider reaches {100 * reach:.1f} cm outside the rendered mesh (at most "
