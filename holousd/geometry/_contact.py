@@ -54,6 +54,17 @@ def _one_piece(solid, before: float, min_keep: float):  # noqa: ANN001, ANN202
     return pieces[0]
 
 
+def _result(mesh: Mesh, solid, before: float, min_keep: float) -> tuple[Mesh, float]:  # noqa: ANN001
+    """What a cut of ``mesh`` (volume ``before``) that left ``solid`` returns: the new mesh and the volume
+    removed, or ``mesh`` and 0 when nothing was removed or the cut is refused (see :func:`_one_piece`)."""
+    if solid.is_empty() or before - solid.volume() <= 1e-12:
+        return mesh, 0.0
+    kept = _one_piece(solid, before, min_keep)
+    if kept is None:
+        return mesh, 0.0
+    return _mesh(kept), float(before - kept.volume())
+
+
 def cut_by_plane(mesh: Mesh, normal: np.ndarray, offset: float, *, min_keep: float = 0.2) -> tuple[Mesh, float]:
     """Keep the part of a closed mesh where ``normal . x >= offset``; returns the mesh and the volume removed.
 
@@ -67,16 +78,11 @@ def cut_by_plane(mesh: Mesh, normal: np.ndarray, offset: float, *, min_keep: flo
         return mesh, 0.0
     before = solid.volume()
     kept = solid.trim_by_plane(tuple(float(v) / norm for v in normal), float(offset) / norm)
-    if kept.is_empty() or before - kept.volume() <= 1e-12:
-        return mesh, 0.0
-    kept = _one_piece(kept, before, min_keep)
-    if kept is None:
-        return mesh, 0.0
-    return _mesh(kept), float(before - kept.volume())
+    return _result(mesh, kept, before, min_keep)
 
 
 def subtract(mesh: Mesh, other: Mesh | list[Mesh], *, min_keep: float = 0.5) -> tuple[Mesh, float]:
-    """``mesh`` minus the solid(s) ``other`` (the largest piece left); returns the mesh and the volume removed.
+    """``mesh`` minus the solid(s) ``other``; returns the mesh and the volume removed.
 
     Unchanged when either is not a closed manifold, when they do not overlap, when what is left falls apart, or
     when less than ``min_keep`` of the mesh's volume would be left (``other`` is then no neighbour that merely
@@ -92,12 +98,7 @@ def subtract(mesh: Mesh, other: Mesh | list[Mesh], *, min_keep: float = 0.5) -> 
         cutter = _solid(o)
         if cutter is not None:
             result = result - cutter
-    if result.is_empty() or before - result.volume() <= 1e-12:
-        return mesh, 0.0
-    result = _one_piece(result, before, min_keep)
-    if result is None:
-        return mesh, 0.0
-    return _mesh(result), float(before - result.volume())
+    return _result(mesh, result, before, min_keep)
 
 
 @dataclass(kw_only=True)
