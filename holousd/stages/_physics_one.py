@@ -41,7 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
-from holousd._errors import HolousdError, SceneError
+from holousd._errors import SceneError
 from holousd.geometry._contact import collider_reach, cut_by_plane, mass_properties, overlap, subtract
 from holousd.graph import RelationConfig, Relations, infer_relations
 from holousd.stages._physics_setup import (
@@ -51,7 +51,7 @@ from holousd.stages._physics_setup import (
     _descendants,
     _room_planes,
     _room_slabs,
-    object_meshes,
+    stage_inputs,
 )
 from holousd.stages._physics_setup import _drop_degenerate as _without_degenerate
 from holousd.usd._scene import BACKGROUND, SceneGraph
@@ -406,13 +406,7 @@ def setup_physics(scene: SceneGraph, config: PhysicsSetupConfig | None = None,
         out_dir: Folder of the new layer (default: the folder of the scene's root layer).
     """
     config = config or PhysicsSetupConfig()
-    if config.background_collider not in ("slabs", "mesh"):
-        raise HolousdError(f"background_collider {config.background_collider!r}: choose 'slabs' or 'mesh'")
-    if out_dir is None:
-        if scene.path is None:
-            raise HolousdError("physics set-up: the scene is in memory; save it to a file first or pass out_dir")
-        out_dir = scene.path.parent
-    meshes, skipped = object_meshes(scene)
+    out_dir, meshes, skipped = stage_inputs(scene, config.background_collider, out_dir)
     bodies: dict[str, _Body] = {}
     for name, mesh in meshes.items():
         try:

@@ -566,12 +566,26 @@ def _decompose(mesh: MeshData, config: PhysicsSetupConfig) -> list[tuple[np.ndar
     return convex_decomposition(mesh.points, mesh.faces, cfg)
 
 
-def object_meshes(scene: SceneGraph) -> tuple[dict[str, MeshData], list[str]]:
-    """Every object's mesh (object coordinates), and the objects without one (they get no rigid body).
+def stage_inputs(scene: SceneGraph, background_collider: str,
+                 out_dir: str | os.PathLike[str] | None) -> tuple[Path, dict[str, MeshData], list[str]]:  # fmt: skip
+    """What every physics set-up starts from, checked: the folder of the new layer (default: the scene's), every
+    object's mesh (object coordinates) and the objects without one (they get no rigid body).
 
     Raises:
-        HolousdError: no object has a mesh.
+        HolousdError: an unknown ``background_collider``, an in-memory scene without ``out_dir``, or no object
+            with a mesh.
     """
+    if background_collider not in ("slabs", "mesh"):
+        raise HolousdError(f"background_collider {background_collider!r}: choose 'slabs' or 'mesh'")
+    if out_dir is None:
+        if scene.path is None:
+            raise HolousdError("physics set-up: the scene is in memory; save it to a file first or pass out_dir")
+        out_dir = scene.path.parent
+    meshes, skipped = _object_meshes(scene)
+    return Path(out_dir), meshes, skipped
+
+
+def _object_meshes(scene: SceneGraph) -> tuple[dict[str, MeshData], list[str]]:
     meshes: dict[str, MeshData] = {}
     skipped: list[str] = []
     for name in scene.objects():
@@ -604,13 +618,7 @@ def setup_physics(scene: SceneGraph, config: PhysicsSetupConfig | None = None,
         return _one_geometry(scene, config, out_dir)
     if config.collider_policy not in ("contents", "convexity"):
         raise HolousdError(f"collider_policy {config.collider_policy!r}: choose 'contents' or 'convexity'")
-    if config.background_collider not in ("slabs", "mesh"):
-        raise HolousdError(f"background_collider {config.background_collider!r}: choose 'slabs' or 'mesh'")
-    if out_dir is None:
-        if scene.path is None:
-            raise HolousdError("physics set-up: the scene is in memory; save it to a file first or pass out_dir")
-        out_dir = scene.path.parent
-    local, skipped = object_meshes(scene)
+    out_dir, local, skipped = stage_inputs(scene, config.background_collider, out_dir)
     world = {name: (scene.get_pose(name).apply(mesh.points), mesh.faces) for name, mesh in local.items()}
     try:
         background = scene.get_mesh(BACKGROUND)
