@@ -128,10 +128,15 @@ def test_summary_table_means_over_scenes() -> None:
     for r in runs:
         r["peak_mem_mb"] = 900.0
         r["eval"]["render"]["ssim"] = 0.8
+    runs[0]["eval"]["physics"].update(max_collider_reach_cm=0.4, max_penetration_cm=0.2, max_fit_shift_cm=0.9)
+    runs[1]["eval"]["physics"].update(max_collider_reach_cm=2.5, max_penetration_cm=None, max_fit_shift_cm=0.3)
+    runs[1]["eval"]["physics"]["cross_check"] = {"solver": "mujoco", "stable_pct": 40.0, "agreement_pct": 70.0}
     payload = {"suite": "hard", "presets": ["fast"], "runs": runs, "command": "holousd bench --suite hard",
                "machine": {"cpu": "X", "cores": 2}, "date": "2026-11-22"}  # fmt: skip
     lines = summary_table([payload]).splitlines()
-    assert lines[2] == "| hard | fast | 2 | 40 | 85.0 | 3.00 | 21.0 | 0.800 | 100 | 50 | – | 900 |"
+    # means over scenes; the records are the worst scene's; a run without a figure is left out of its mean
+    assert lines[2] == ("| hard | fast | 2 | 40 | 85.0 | 3.00 | 21.0 | 0.800 | 100 | 50 | 40 | 70 | 2.5 | 0.2 | 0.9 "
+                        "| 900 |")
     assert lines[-1] == "- hard: `holousd bench --suite hard` on cpu X, cores 2, 2026-11-22"
 
 

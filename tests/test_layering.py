@@ -42,3 +42,54 @@ def test_ruff_clean() -> None:
     ruff = shutil.which("ruff") or str(Path(sys.executable).with_name("ruff"))
     result = subprocess.run([ruff, "check", "holousd", "tests"], cwd=PACKAGE.parent, capture_output=True, text=True)
     assert result.returncode == 0, result.stdout + result.stderr
+
+
+def _module_imports(folder: Path) -> dict[str, set[str]]:
+    """Module name -> sibling modules it imports (``from ._x import``, ``from . import _x``, ``holousd.<pkg>._x``),
+    at module level or inside functions alike: a lazy import still closes a circle."""
+    modules = {p.stem: p for p in folder.glob("*.py")}
+    package = folder.name
+    graph: dict[str, set[str]] = {}
+    for name, path in modules.items():
+        text = path.read_text()
+        found = set(re.findall(r"^\s*from\s+\.(\w+)\s+import", text, re.M))
+        found |= set(re.findall(r"^\s*from\s+holousd\." + package + r"\.(\w+)\s+import", text, re.M))
+        for group in re.findall(r"^\s*from\s+\.\s+import\s+([\w, ]+)", text, re.M):
+            found |= {g.strip() for g in group.split(",")}
+        graph[name] = {m for m in found if m in modules and m != name}
+    return graph
+
+
+@pytest.mark.parametrize("domain", ["physics", "geometry", "render"])
+def test_no_import_circles_inside_a_domain(domain: str) -> None:
+    graph = _module_imports(PACKAGE / domain)
+    graph.pop("__init__", None)
+    for deps in graph.values():
+        deps.discard("__init__")
+    state: dict[str, int] = {}
+    stack: list[str] = []
+
+    def visit(node: str) -> None:
+        state[node] = 1
+        stack.append(node)
+        for nxt in sorted(graph.get(node, ())):
+            if state.get(nxt) == 1:
+                cycle = stack[stack.index(nxt) :] + [nxt]
+                pytest.fail(f"holousd/{domain} import circle: {' -> '.join(cycle)}")
+            if nxt not in state:
+                visit(nxt)
+        stack.pop()
+        state[node] = 2
+
+    for node in sorted(graph):
+        if node not in state:
+            visit(node)
+
+
+def test_render_kernels_never_import_eval() -> None:
+    """The appearance fit's loss is the render domain's own (``holousd.render._ssim``); only the render CLI,
+    which offers the appearance benchmark, reaches into eval."""
+    pattern = re.compile(r"^\s*(?:from|import)\s+holousd\.eval\b", re.M)
+    sources = [p for p in (PACKAGE / "render").glob("*.py") if p.name != "_cli.py"]
+    offenders = [p.name for p in sources if pattern.search(p.read_text())]
+    assert not offenders, offenders

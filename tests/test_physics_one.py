@@ -1,4 +1,4 @@
-"""The one-geometry physics set-up (holousd.stages._physics_one, opt-in: PhysicsSetupConfig(one_geometry=True)):
+"""The one-geometry physics set-up (holousd.stages._physics_one, the physics stage's default):
 its mesh edits on hand-made scenes, the collider derived from the final mesh, the records, and negative controls
 that must fall (and a positive one that must stand) in both solvers."""
 
@@ -178,7 +178,23 @@ _NEAR_LEGS = _union(_TOP, _box((-0.4, -0.3, -0.005), (-0.35, -0.25, 0.7)),
                     _box((-0.4, 0.25, -0.005), (-0.35, 0.3, 0.7)))  # the far legs were never seen
 
 
-@pytest.mark.parametrize("case", ["stands", "overhang", "cantilever", "slope", "thin-edge", "table-far-legs-unseen"])
+_STACKS = {
+    # a block crossing the one under it: its ends overhang the bottom block 3 cm lower
+    "crossed-stack": {"bottom": _box((-0.2, -0.2, -0.005), (0.2, 0.2, 0.1)),
+                      "middle": _box((-0.15, -0.03, 0.102), (0.15, 0.03, 0.132)),
+                      "top": _box((-0.03, -0.18, 0.134), (0.03, 0.18, 0.164))},
+    # a plate overhanging the book under it, above the box the book lies on
+    "plate-book-box": {"box": _box((-0.2, -0.2, -0.005), (0.2, 0.2, 0.2)),
+                       "book": _box((-0.08, -0.06, 0.202), (0.08, 0.06, 0.232)),
+                       "plate": _box((-0.12, -0.12, 0.234), (0.12, 0.12, 0.244))},
+}
+"""Stacks whose top object's overhanging ends lie above a lower object within the support search's reach."""
+_STACK_PARENTS = {"crossed-stack": {"bottom": BACKGROUND, "middle": "bottom", "top": "middle"},
+                  "plate-book-box": {"box": BACKGROUND, "book": "box", "plate": "book"}}  # fmt: skip
+
+
+@pytest.mark.parametrize("case", ["stands", "overhang", "cantilever", "slope", "thin-edge", "table-far-legs-unseen",
+                                  "crossed-stack", "plate-book-box"])  # fmt: skip
 def test_what_cannot_stand_falls_through_the_set_up(case: str, tmp_path: Path) -> None:
     objects = {
         "stands": {"base": _box((-0.2, -0.2, -0.005), (0.2, 0.2, 0.3)),
@@ -191,14 +207,17 @@ def test_what_cannot_stand_falls_through_the_set_up(case: str, tmp_path: Path) -
         "thin-edge": {"post": _box((-0.01, -0.2, -0.005), (0.01, 0.2, 0.4)),
                       "plate": _box((-0.12, -0.15, 0.402), (0.18, 0.15, 0.42))},  # centre 3 cm past the edge
         "table-far-legs-unseen": {"table": _NEAR_LEGS},
+        **_STACKS,
     }[case]
     if case == "slope":
         objects["ball"] = _on_slope(objects["ramp"], 0.05)
     scene = _scene(tmp_path, objects)
-    setup_physics(scene, PhysicsSetupConfig())
+    result = setup_physics(scene, PhysicsSetupConfig())
+    if case in _STACK_PARENTS:
+        assert result.relations.support == _STACK_PARENTS[case]
     verdicts = _verdicts(scene)
     falls = {"stands": set(), "overhang": {"top"}, "cantilever": {"top"}, "slope": {"ball"}, "thin-edge": {"plate"},
-             "table-far-legs-unseen": {"table"}}[case]  # fmt: skip
+             "table-far-legs-unseen": {"table"}, "crossed-stack": set(), "plate-book-box": set()}[case]  # fmt: skip
     for name, (xpbd, mujoco) in verdicts.items():
         want = name not in falls
         assert xpbd == want and mujoco == want, (case, verdicts)
@@ -264,3 +283,85 @@ def test_overlap_depth_and_cuts_of_turned_and_split_objects() -> None:
     assert removed == 0.0 and np.array_equal(kept[0], legs[0])
     (p, _), removed = cut_by_plane(legs, np.array([0.0, 0.0, -2.0]), -1.48)  # z <= 0.74: 1 cm off the top
     assert p[:, 2].max() == pytest.approx(0.74) and removed == pytest.approx(0.01, rel=1e-3)
+
+
+def test_support_is_what_an_object_touches_not_what_its_overhang_is_above() -> None:
+    from holousd.graph import infer_relations
+
+    for case, parents in _STACK_PARENTS.items():
+        assert infer_relations(_STACKS[case]).support == parents, case
+    # a staircase: the top step overhangs the middle one by more than half its length, 3 cm above the bottom one
+    stairs = {"bottom": _box((-0.3, -0.1, 0.0), (0.3, 0.1, 0.04)),
+              "middle": _box((-0.2, -0.1, 0.04), (0.1, 0.1, 0.07)),
+              "top": _box((0.0, -0.1, 0.07), (0.24, 0.1, 0.1))}
+    assert infer_relations(stairs).support == {"bottom": BACKGROUND, "middle": "bottom", "top": "middle"}
+    # an object resting on two supports of one height keeps the one under most of it
+    bridge = {"left": _box((-0.3, -0.1, 0.0), (-0.1, 0.1, 0.1)), "right": _box((0.1, -0.1, 0.0), (0.2, 0.1, 0.1)),
+              "board": _box((-0.25, -0.1, 0.1), (0.2, 0.1, 0.12))}
+    assert infer_relations(bridge).support["board"] == "left"
+
+
+# ----------------------------------------------------------------------------------------------- decomposition
+def test_plane_decomposition_follows_slabs_and_posts_and_convexify_makes_it_the_mesh() -> None:
+    from holousd.geometry import convexify, plane_decomposition
+    from holousd.geometry._contact import _solid
+
+    # a ring of boards: no single cut lowers its hull's excess
+    shelf = _union(_box((0, 0, 0), (0.6, 0.3, 0.02)), _box((0, 0, 0.5), (0.6, 0.3, 0.52)),
+                   _box((0, 0, 0), (0.02, 0.3, 0.52)), _box((0.58, 0, 0), (0.6, 0.3, 0.52)))  # fmt: skip
+    table = _union(_box((-0.4, -0.3, 0.7), (0.4, 0.3, 0.74)),
+                   *(_box((x, y, 0.0), (x + 0.05, y + 0.05, 0.7)) for x in (-0.4, 0.35) for y in (-0.3, 0.25)))
+    for mesh in (shelf, table):
+        found = plane_decomposition(mesh, tolerance=0.003, max_parts=16)
+        assert found is not None and 2 <= len(found.parts) <= 8  # boards and posts (a few slivers at most)
+        assert collider_reach(found.parts, mesh) < 0.003 and found.excess_m3 < 5e-4  # 0.5 mm slivers at most
+        united = convexify(mesh, found)
+        grown = _solid(united).volume() - _solid(mesh).volume()  # the hulls fill at most the tolerance
+        assert -1e-7 <= grown <= found.excess_m3 + 1e-7
+    # a flat support surface given as a cut: no part bridges above it
+    bumpy = _union(_box((0, 0, 0), (0.5, 0.5, 0.1)), _box((0.45, 0.0, 0.1), (0.5, 0.05, 0.13)))
+    found = plane_decomposition(bumpy, tolerance=0.05, max_parts=8, cuts=[(np.array([0.0, 0.0, 1.0]), 0.1)])
+    under = [p for p, _ in found.parts if p[:, 2].max() > 0.1 + 6e-4]  # half a millimetre off the surface
+    assert under and all(p[:, 0].min() >= 0.45 - 1e-6 for p in under)  # only the bump rises above the surface
+    assert plane_decomposition((np.zeros((3, 3)), np.array([[0, 1, 2]]))) is None  # not a closed solid
+
+
+def test_zero_area_faces_go_and_a_closed_mesh_stays_closed() -> None:
+    from holousd.geometry._contact import without_zero_area_faces
+
+    points, faces = _box((0, 0, 0), (1, 1, 1))
+    points, faces = np.asarray(points, float), np.asarray(faces, np.int64)
+    # a sliver on the top face's diagonal a -> c, its middle corner m on that line, every edge still paired
+    i = next(k for k, f in enumerate(faces) if np.allclose(points[f][:, 2], 1.0))
+    a, c, x = faces[i]
+    m = len(points)
+    points = np.vstack([points, (points[a] + points[c]) / 2])
+    faces = np.vstack([np.delete(faces, i, axis=0), [[a, m, x], [m, c, x], [a, c, m]]])
+    assert trimesh.Trimesh(points, faces, process=False).is_watertight  # the damaged mesh is closed
+    cleaned = without_zero_area_faces((points, faces))
+    tri = cleaned[0][cleaned[1]]
+    assert np.all(np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1) > 1e-12)
+    fixed = trimesh.Trimesh(*cleaned, process=False)
+    assert fixed.is_watertight and fixed.volume == pytest.approx(1.0) and len(cleaned[1]) == 14
+    # two corners at one point: edge a -> b split at a copy a2 of a, two faces of zero area, every edge paired
+    points2, faces2 = (np.asarray(v) for v in _box((0, 0, 0), (1, 1, 1)))
+    a, b, x = (int(v) for v in faces2[0])
+    a2 = len(points2)
+    points2 = np.vstack([points2, points2[a]])
+    faces2 = np.vstack([faces2[1:], [[a2, b, x], [a, a2, x], [b, a2, a]]])
+    assert trimesh.Trimesh(points2, faces2, process=False).is_watertight
+    tri2 = points2[faces2]
+    assert np.sum(np.linalg.norm(np.cross(tri2[:, 1] - tri2[:, 0], tri2[:, 2] - tri2[:, 0]), axis=1) < 1e-12) == 2
+    merged = trimesh.Trimesh(*without_zero_area_faces((points2, faces2)), process=False)
+    assert merged.is_watertight and merged.volume == pytest.approx(1.0) and len(merged.faces) == 12
+
+
+def test_collider_reach_is_not_fooled_by_slivers_of_a_boolean_union() -> None:
+    from holousd.geometry import convexify, plane_decomposition
+
+    ell = _union(_box((0, 0, 0), (0.4, 0.1, 0.1)), _box((0, 0, 0.1), (0.1, 0.1, 0.4)))
+    found = plane_decomposition(ell, tolerance=0.002, max_parts=8)
+    united = convexify(ell, found)
+    assert collider_reach(found.parts, united) < 1e-4  # the union is the parts: nothing reaches outside
+    hull = trimesh.Trimesh(*ell).convex_hull
+    assert collider_reach([(np.asarray(hull.vertices), np.asarray(hull.faces))], united) > 0.1

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import trimesh
 from pxr import Sdf
 
 from holousd.stages import _pipeline
@@ -77,7 +78,8 @@ def test_reconstruct_writes_every_stage_layer_with_records(recon: tuple[Path, _p
     agree = 0
     for name, parent in parents.items():
         node = summary[name]
-        assert node.mass_kg and node.mass_kg > 0 and node.collider == "convexHull" and node.splats > 0
+        assert node.mass_kg and node.mass_kg > 0 and node.splats > 0
+        assert node.collider in ("convexHull", "convexDecomposition") and node.collider_parts >= 1  # convex parts
         agree += node.supported_by == parent
     assert agree >= 0.7 * len(parents)
     assert summary["background"].collider == "convexDecomposition"  # floor and wall slabs
@@ -149,9 +151,14 @@ def test_eval_of_reconstruction_reports_every_key(recon: tuple[Path, _pipeline.P
         assert set(d["geometry"][part]) == {"chamfer_cm", "f1", "nc"}
         assert 0 < d["geometry"][part]["f1"] <= 100 and d["geometry"][part]["chamfer_cm"] > 0
     assert set(d["render"]) == {"psnr", "ssim"} and np.isfinite(d["render"]["psnr"])
-    assert set(d["physics"]) == {"or_pct", "stable_pct", "penetration_cm3", "solver", "cross_check"}
+    assert set(d["physics"]) == {"or_pct", "stable_pct", "penetration_cm3", "solver", "cross_check",
+                                 "max_fit_shift_cm", "max_collider_reach_cm", "max_penetration_cm"}  # fmt: skip
+    worst = max(o["collider_reach_cm"] for o in d["objects"])  # the rows carry each object's record
+    assert d["physics"]["max_collider_reach_cm"] == pytest.approx(worst) and d["physics"]["max_fit_shift_cm"] <= 1.0
     assert d["physics"]["solver"] == "xpbd" and d["physics"]["cross_check"]["solver"] == "mujoco"
-    assert d["physics"]["or_pct"] == 100.0 and 0 <= d["physics"]["stable_pct"] <= 100
+    assert d["physics"]["or_pct"] == 100.0
+    # Stable% counts the ground truth's objects whose reconstruction stands (the rows' verdicts)
+    assert d["physics"]["stable_pct"] == pytest.approx(10.0 * sum(o["stable"] is True for o in d["objects"]))
     assert set(d["cost"]) == {"total_s", "stages", "peak_mem_mb"} and list(d["cost"]["stages"]) == list(STAGES)
     assert len(d["objects"]) == 10 and all(o["recon"] == o["name"] for o in d["objects"])
     report = write_report(tmp_path / "report.html", evaluation=d, scene_file=out / "scene.usda", gt_dir=capture)
@@ -320,6 +327,11 @@ def test_physics_set_up_records_how_the_geometry_was_changed(recon: tuple[Path, 
     for name in scene.objects():
         record = scene.get_geometry_record(name)
         assert record is not None and record.volume > 0 and record.collider_reach >= 0 and record.penetration >= 0
+        mesh = scene.get_mesh(name)  # the default (one-geometry) set-up end to end: closed meshes, and where the
+        assert trimesh.Trimesh(mesh.points, mesh.faces, process=False).is_watertight, name  # mesh was made the
+        if any(e.startswith("convexify") for e in record.edits):  # union of its collider's parts, nothing of the
+            assert record.collider_reach < 1e-3, (name, record.collider_reach)  # collider reaches outside it
+        assert np.linalg.norm(record.fit_shift) <= 0.01 + 1e-6, (name, record.fit_shift)  # moved <= 1 cm
         physics = scene.get_physics(name)
         assert physics.diagonal_inertia is not None and np.all(physics.diagonal_inertia > 0)
         assert physics.mass == pytest.approx(500.0 * record.volume, rel=1e-6) or physics.mass == pytest.approx(1e-3)

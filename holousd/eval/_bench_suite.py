@@ -188,7 +188,9 @@ def summary_table(payloads: list[dict[str, Any]]) -> str:
     """Markdown table of one or more ``bench.json`` payloads: one row per suite and preset, means over scenes.
 
     Columns: scenes, wall time per scene, F1@5cm and Chamfer (scene, visible ground truth), PSNR / SSIM at held-out
-    views, OR%, Stable% (primary solver) and the cross-check solver's Stable%, peak memory. Below it, the command
+    views, OR%, Stable% (primary solver), the cross-check solver's Stable% and the two solvers' agreement, the
+    worst object's records over the scenes (collider reach outside the rendered mesh, rendered-mesh penetration,
+    move from the fitted pose, cm; "–" for runs made before the records), peak memory. Below it, the command
     and machine of each payload. The README's results table is this function's output on the committed reference
     runs (``holousd bench --table``).
     """
@@ -196,8 +198,13 @@ def summary_table(payloads: list[dict[str, Any]]) -> str:
     def cell(v: float | None, spec: str) -> str:
         return "–" if v is None else format(v, spec)
 
+    def worst(ev: list[dict[str, Any]], key: str) -> float | None:
+        values = [e["physics"].get(key) for e in ev if e["physics"].get(key) is not None]
+        return max(values) if values else None
+
     lines = ["| suite | preset | scenes | wall s / scene | F1@5cm % | Chamfer cm | PSNR dB | SSIM | OR % | Stable % "
-             "| Stable % (cross-check) | peak MiB |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+             "| Stable % (cross-check) | agreement % | reach cm | pen cm | shift cm | peak MiB |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
     notes = []
     for payload in payloads:
         runs = payload["runs"]
@@ -215,6 +222,9 @@ def summary_table(payloads: list[dict[str, Any]]) -> str:
                 f"| {cell(_mean([e['physics']['or_pct'] for e in ev]), '.0f')} "
                 f"| {cell(_mean([e['physics']['stable_pct'] for e in ev]), '.0f')} "
                 f"| {cell(_mean([(e['physics'].get('cross_check') or {}).get('stable_pct') for e in ev]), '.0f')} "
+                f"| {cell(_mean([(e['physics'].get('cross_check') or {}).get('agreement_pct') for e in ev]), '.0f')} "
+                f"| {cell(worst(ev, 'max_collider_reach_cm'), '.1f')} | {cell(worst(ev, 'max_penetration_cm'), '.1f')} "
+                f"| {cell(worst(ev, 'max_fit_shift_cm'), '.1f')} "
                 f"| {cell(max(r['peak_mem_mb'] for r in rows), '.0f')} |"
             )
         m = payload.get("machine") or {}

@@ -213,6 +213,7 @@ def write_report(path: str | os.PathLike[str], *, evaluation: dict[str, Any], sc
     rows = ev["objects"]
     f1_chart = _png_uri(bar_chart("F1 per object (%, 5 cm)", [o["name"] for o in rows], [o["f1"] for o in rows]))
     reference = reference_runs()
+    reference_labels = html.escape(", ".join(sorted({r["preset"] for r in reference})))
     with tempfile.TemporaryDirectory() as tmp:
         this = {"preset": "this run", "wall_s": ev["cost"]["total_s"] or 0.0, "eval": ev}
         chart_file = chart_vs_time([*reference, this], Path(tmp) / "chart.png")
@@ -239,10 +240,13 @@ pre{{background:#f6f6f6;padding:8px;display:inline-block;vertical-align:top;marg
 <p>Scene: <code>{html.escape(str(scene_file))}</code> &mdash; ground truth: <code>{html.escape(str(gt_dir))}</code></p>
 <h2>Headline</h2><table>
 <tr><th>Chamfer (scene)</th><th>F1 (scene)</th><th>NC</th><th>PSNR</th><th>SSIM</th><th>OR%</th><th>Stable%</th>
-<th>penetration</th><th>wall time</th><th>peak memory</th></tr>
+<th>penetration</th><th>collider reach</th><th>mesh penetration</th><th>move from fit</th><th>wall time</th>
+<th>peak memory</th></tr>
 <tr><td>{f(g["scene"]["chamfer_cm"])} cm</td><td>{f(g["scene"]["f1"], ".1f")}</td>
 <td>{f(g["scene"]["nc"], ".1f")}</td><td>{f(r["psnr"])} dB</td><td>{f(r["ssim"], ".3f")}</td>
 <td>{f(p["or_pct"], ".0f")}</td><td>{f(p["stable_pct"], ".0f")}</td><td>{f(p["penetration_cm3"], ".1f")} cm&sup3;</td>
+<td>{f(p.get("max_collider_reach_cm"), ".1f")} cm</td><td>{f(p.get("max_penetration_cm"), ".1f")} cm</td>
+<td>{f(p.get("max_fit_shift_cm"), ".1f")} cm</td>
 <td>{f(c["total_s"], ".1f")} s</td><td>{f(c["peak_mem_mb"], ".0f")} MiB</td></tr></table>
 <h2>Input frames</h2>{"".join(f'<img src="{u}">' for u in inputs)}
 <h2>Novel view (reconstructed splats, orbit camera)</h2>
@@ -258,7 +262,7 @@ pre{{background:#f6f6f6;padding:8px;display:inline-block;vertical-align:top;marg
 <th>moved m</th><th>turned &deg;</th>
 <th>verdict</th></tr>{table}</table>
 <h2>Speed against accuracy</h2><p>This run ("this run") beside the reference <code>holousd bench</code> runs
-shipped with holousd ({len(reference)} runs; bench and hard suites, fast and default presets; see the README for the
+shipped with holousd ({len(reference)} runs: {reference_labels}; see the README for the
 command and machine). x: wall time of the reconstruction.</p><img src="{tradeoff_chart}">
 <h2>Cost</h2><img src="{cost_chart}"><img src="{f1_chart}">
 <ul>{"".join(f"<li>{html.escape(n)}</li>" for n in ev["notes"])}</ul>

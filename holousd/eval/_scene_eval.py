@@ -77,6 +77,12 @@ class ObjectRow:
     """Ground-truth support parent."""
     parent_recon: str | None = None
     """Reconstructed support parent (ground-truth name when it maps to one)."""
+    fit_shift_cm: float | None = None
+    """How far the physics set-up moved the reconstructed object from its fitted pose, cm (its record)."""
+    collider_reach_cm: float | None = None
+    """How far its collider reaches outside its rendered mesh, cm (its record)."""
+    penetration_cm: float | None = None
+    """Its rendered mesh's deepest penetration into another node, cm (its record)."""
 
 
 @dataclass(kw_only=True)
@@ -88,7 +94,9 @@ class SceneEvaluation:
     render: dict[str, float | None]
     """``{psnr, ssim}`` (null without splats)."""
     physics: dict[str, Any]
-    """``{or_pct, stable_pct, penetration_cm3, solver, cross_check: {solver, stable_pct, agreement_pct} | null}``."""
+    """``{or_pct, stable_pct, penetration_cm3, solver, cross_check: {solver, stable_pct, agreement_pct} | null,
+    max_fit_shift_cm, max_collider_reach_cm, max_penetration_cm}`` (the last three: the worst object's
+    ``HoloGeometryAPI`` record; null when no object has one)."""
     cost: dict[str, Any]
     """``{total_s, stages: {name: seconds}, peak_mem_mb}``."""
     objects: list[ObjectRow] = field(default_factory=list)
@@ -311,6 +319,7 @@ def evaluate_scene(recon: str | os.PathLike[str], gt: str | os.PathLike[str],
             stable=verdict.stable if verdict else None, translation_m=verdict.translation_m if verdict else None,
             rotation_deg=verdict.rotation_deg if verdict else None, parent_gt=node.get("parent"),
             parent_recon=parent_recon,
+            **_record_cm(scene, name),
         ))  # fmt: skip
 
     records = read_stage_records(scene_file.parent)
@@ -329,6 +338,7 @@ def evaluate_scene(recon: str | os.PathLike[str], gt: str | os.PathLike[str],
             "penetration_cm3": float(penetration),
             "solver": primary,
             "cross_check": cross,
+            **_worst_records(rows),
         },
         cost=cost,
         objects=rows,
@@ -337,3 +347,22 @@ def evaluate_scene(recon: str | os.PathLike[str], gt: str | os.PathLike[str],
         gt_dir=str(gt_dir),
         support_accuracy_pct=100.0 * agree / matched if matched else None,
     )
+
+
+def _record_cm(scene: Any, name: str | None) -> dict[str, float | None]:
+    """An object's geometry record (HoloGeometryAPI) in cm, for its row (``scene``: a SceneGraph)."""
+    record = scene.get_geometry_record(name) if name is not None else None
+    if record is None:
+        return {"fit_shift_cm": None, "collider_reach_cm": None, "penetration_cm": None}
+    return {"fit_shift_cm": 100.0 * float(np.linalg.norm(record.fit_shift)),
+            "collider_reach_cm": 100.0 * float(record.collider_reach),
+            "penetration_cm": 100.0 * float(record.penetration)}  # fmt: skip
+
+
+def _worst_records(rows: list[ObjectRow]) -> dict[str, float | None]:
+    """The worst object's records: ``max_fit_shift_cm``, ``max_collider_reach_cm``, ``max_penetration_cm``."""
+    out: dict[str, float | None] = {}
+    for key in ("fit_shift_cm", "collider_reach_cm", "penetration_cm"):
+        values = [getattr(r, key) for r in rows if getattr(r, key) is not None]
+        out[f"max_{key}"] = float(max(values)) if values else None
+    return out

@@ -21,6 +21,7 @@ __all__ = [
     "mass_properties",
     "overlap",
     "subtract",
+    "without_zero_area_faces",
 ]
 
 Mesh = tuple[np.ndarray, np.ndarray]
@@ -185,11 +186,23 @@ def collider_reach(parts: list[Mesh], mesh: Mesh, *, samples: int = 2000, seed: 
     # closest to an edge or a corner the face's normal says little (straight out from an edge it is at 90
     # degrees to the offset): those few points get the ray-parity test
     unsure = off & (np.abs(side) < 0.5 * distance)
-    if unsure.any() and target.is_watertight:
+    watertight = target.is_watertight
+    if unsure.any() and watertight:
         with np.errstate(invalid="ignore", divide="ignore"):
             is_outside[unsure] = ~target.contains(pts[unsure])
-    outside = distance[off & is_outside]
-    return float(outside.max()) if len(outside) else 0.0
+    candidates = np.flatnonzero(off & is_outside)
+    if not watertight:
+        return float(distance[candidates].max()) if len(candidates) else 0.0
+    # the sign test misreads points next to the slivers boolean operations leave: the farthest points said to
+    # be outside are confirmed by ray parity, farthest first, until one is
+    candidates = candidates[np.argsort(-distance[candidates])]
+    for start in range(0, len(candidates), 256):
+        batch = candidates[start : start + 256]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            confirmed = batch[~target.contains(pts[batch])]
+        if len(confirmed):
+            return float(distance[confirmed].max())
+    return 0.0
 
 
 @dataclass(kw_only=True)
@@ -231,3 +244,64 @@ def mass_properties(mesh: Mesh, density: float) -> MassProperties:
     return MassProperties(volume_m3=volume, mass_kg=float(density) * volume, center_of_mass=com,
                           diagonal_inertia=np.maximum(moments, 0.0),
                           principal_axes=Rotation.from_matrix(axes).as_quat())  # fmt: skip
+
+
+def without_zero_area_faces(mesh: Mesh, *, eps: float = 1e-12) -> Mesh:
+    """``mesh`` with its zero-area faces removed so that a closed mesh stays closed (boolean results carry a few:
+    a sliver whose three corners lie on a line, or two corners at one point; the splat binding rejects them).
+
+    A face with two coincident corners is collapsed (its corners merged; the faces left with a repeated corner
+    go); a face whose corners lie on a line goes, and the neighbour across its long edge is split at the middle
+    corner, which keeps every edge paired. Faces still degenerate after a few rounds are dropped.
+    """
+    points = np.asarray(mesh[0], np.float64)
+    faces = np.asarray(mesh[1], np.int64).copy()
+
+    def twice_area(f: np.ndarray) -> np.ndarray:
+        t = points[f]
+        return np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
+
+    for _ in range(8):
+        bad = np.flatnonzero(twice_area(faces) < eps)
+        if len(bad) == 0:
+            break
+        face_of_edge = {(int(f[k]), int(f[(k + 1) % 3])): i for i, f in enumerate(faces) for k in range(3)}
+        drop: set[int] = set()
+        extra: list[list[int]] = []
+        merge: dict[int, int] = {}
+        for i in bad:
+            if i in drop:
+                continue
+            f = [int(v) for v in faces[i]]
+            corners = points[f]
+            lengths = [float(np.linalg.norm(corners[(k + 1) % 3] - corners[k])) for k in range(3)]
+            short = int(np.argmin(lengths))
+            if lengths[short] <= 1e-9:  # two corners at one point: merge them
+                a, b = f[short], f[(short + 1) % 3]
+                if a != b:  # a face that repeats a corner index just goes
+                    merge[max(a, b)] = min(merge.get(min(a, b), min(a, b)), min(a, b))
+                drop.add(i)
+                continue
+            k = int(np.argmax(lengths))  # directed long edge a -> c, middle corner b
+            a, c, b = f[k], f[(k + 1) % 3], f[(k + 2) % 3]
+            j = face_of_edge.get((c, a))
+            if j is None or j in drop or j == i:
+                continue
+            g = [int(v) for v in faces[j]]
+            d = next(v for v in g if v not in (a, c))
+            drop.update((i, j))
+            extra += [[c, b, d], [b, a, d]]
+        keep = np.array([i not in drop for i in range(len(faces))], bool)
+        faces = np.concatenate([faces[keep], np.asarray(extra, np.int64).reshape(-1, 3)])
+        if merge:
+            for old in sorted(merge, reverse=True):  # follow chains of merges
+                new = merge[old]
+                while new in merge and merge[new] < new:  # indices only decrease: no cycle
+                    new = merge[new]
+                faces[faces == old] = new
+            faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])]
+    faces = faces[twice_area(faces) >= eps]
+    used = np.unique(faces)
+    remap = np.full(len(points), -1, np.int64)
+    remap[used] = np.arange(len(used))
+    return points[used], remap[faces]

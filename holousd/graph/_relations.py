@@ -1,9 +1,11 @@
 """Support tree and beside pairs inferred from geometry alone (world-space triangle meshes).
 
-Support: an object rests on the node whose surface lies directly below its lowest points. Rays are cast
-straight down from the object's lowest vertices (started a little above them, so that a slight penetration
-still finds the surface it sank into); every other object whose hit lies within ``max_gap`` gets one vote per
-ray and the most-voted one is the parent. Only nodes whose bottom is lower than the object's bottom can be
+Support: an object rests on the node it touches directly below its lowest points. Rays are cast straight
+down from the object's lowest vertices (started a little above them, so that a slight penetration still finds
+the surface it sank into); each ray finds the closest surface below it within ``max_gap``. Only rays that end
+within ``contact_band`` of the shortest drop of all count: they are where the object touches (the ends of a
+block crossing the one under it overhang a lower block; those rays fall further and do not vote). The node
+most of those rays hit is the parent. Only nodes whose bottom is lower than the object's bottom can be
 parents, which keeps the graph a tree. Nothing below -> the background.
 
 Beside: siblings (same parent) whose surfaces come within ``beside_distance`` of each other.
@@ -38,6 +40,9 @@ class RelationConfig:
     """Rays start this far above each contact point (tolerates that much penetration), metres."""
     max_gap: float = 0.05
     """Largest drop from a contact point to a supporting surface, metres."""
+    contact_band: float = 0.01
+    """Rays whose drop exceeds the object's shortest drop by more than this do not vote, metres: they pass over
+    an edge of what the object rests on (a few millimetres of fitted gap or overlap still count as contact)."""
     beside_distance: float = 0.01
     """Siblings whose surfaces come this close touch each other, metres."""
     beside_samples: int = 2000
@@ -82,8 +87,33 @@ def _trimesh(mesh: Mesh):  # noqa: ANN202
     return trimesh.Trimesh(vertices=np.asarray(mesh[0], float), faces=np.asarray(mesh[1], np.int64), process=False)
 
 
-def _contact_points(points: np.ndarray, config: RelationConfig) -> np.ndarray:
-    low = points[points[:, 2] <= points[:, 2].min() + config.bottom_band]  # [K, 3]
+def _contact_points(mesh: Mesh, config: RelationConfig) -> np.ndarray:
+    """[K, 3] points of the mesh's underside within ``bottom_band`` of its lowest point: its low vertices and a
+    regular grid over the faces lying in the band (a box's bottom has vertices at its corners only; where it
+    touches may be its middle), at most ``max_rays``, evenly subsampled."""
+    points, faces = np.asarray(mesh[0], float), np.asarray(mesh[1], np.int64)
+    top = points[:, 2].min() + config.bottom_band
+    low = points[points[:, 2] <= top]  # [K, 3]
+    tri = points[faces]
+    tri = tri[(tri[:, :, 2] <= top).all(axis=1)]  # [T, 3, 3] faces in the band
+    if len(tri):
+        lo, hi = tri[:, :, :2].reshape(-1, 2).min(axis=0), tri[:, :, :2].reshape(-1, 2).max(axis=0)
+        side = np.linspace(0.0, 1.0, 16)[1:-1]
+        grid = np.stack(np.meshgrid(lo[0] + side * (hi[0] - lo[0]), lo[1] + side * (hi[1] - lo[1])), -1).reshape(-1, 2)
+        a, b, c = tri[:, 0, :2], tri[:, 1, :2], tri[:, 2, :2]  # [T, 2]
+        det = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (c[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1])
+        ok = np.abs(det) > 1e-14
+        a, b, c, det, z = a[ok], b[ok], c[ok], det[ok], tri[ok, :, 2]
+        d = grid[:, None, :] - a[None]  # [G, T, 2]
+        u = (d[..., 0] * (c[:, 1] - a[:, 1]) - d[..., 1] * (c[:, 0] - a[:, 0])) / det
+        v = (d[..., 1] * (b[:, 0] - a[:, 0]) - d[..., 0] * (b[:, 1] - a[:, 1])) / det
+        inside = (u >= 0) & (v >= 0) & (u + v <= 1)
+        g, t = np.nonzero(inside)
+        if len(g):
+            first = np.unique(g, return_index=True)[1]  # one face per grid point (the band is nearly flat)
+            g, t = g[first], t[first]
+            height = z[t, 0] + u[g, t] * (z[t, 1] - z[t, 0]) + v[g, t] * (z[t, 2] - z[t, 0])
+            low = np.concatenate([low, np.column_stack([grid[g], height])])
     return low[evenly_spaced(len(low), config.max_rays)]
 
 
@@ -107,7 +137,7 @@ def infer_relations(meshes: dict[str, Mesh], config: RelationConfig | None = Non
     result = Relations()
     for name in names:
         pts = np.asarray(meshes[name][0], float)
-        low = _contact_points(pts, config)
+        low = _contact_points(meshes[name], config)
         bottom = float(pts[:, 2].min())
         votes: dict[str, int] = {}
         origins = low + np.array([0.0, 0.0, config.ray_start])
@@ -131,9 +161,10 @@ def infer_relations(meshes: dict[str, Mesh], config: RelationConfig | None = Non
             for r, d in zip(ray_index[ok], drop[ok], strict=True):
                 if d < best[r]:
                     best[r], owner[r] = d, other
-        for o in owner:
-            if o:
-                votes[o] = votes.get(o, 0) + 1
+        hit = owner != ""
+        touching = hit & (best <= (best[hit].min() if hit.any() else 0.0) + config.contact_band)
+        for o in owner[touching]:
+            votes[o] = votes.get(o, 0) + 1
         result.votes[name] = votes
         result.support[name] = max(sorted(votes), key=lambda k: votes[k]) if votes else BACKGROUND
     result.beside = {n: [] for n in names}
@@ -222,7 +253,7 @@ def settle_offsets(meshes: dict[str, Mesh], background: Mesh | None, relations: 
         pts = np.asarray(meshes[name][0], float) + np.array([0.0, 0.0, base])
         own = 0.0
         if parent in surfaces:
-            low = _contact_points(pts, config)
+            low = _contact_points(meshes[name], config)
             bottom = float(pts[:, 2].min())
             ppts, pfaces = surfaces[parent]
             ppts = np.asarray(ppts, float) + np.array([0.0, 0.0, shift.get(parent, 0.0)])

@@ -21,7 +21,7 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
 
     stab = subparsers.add_parser(
         "stability",
-        help="stability verdict per object (Stable%%) under the physics protocol",
+        help="stability verdict per rigid body (stable bodies %%) under the physics protocol",
         description="Simulate every rigid body of a UsdPhysics scene together under gravity only (friction 0.5 on "
         "every collider, no damping, 240 Hz) and report per object its largest translation and rotation and "
         "whether it stayed under 2 cm and 5 degrees. Works on any UsdPhysics scene; objects are named by prim "
@@ -134,16 +134,21 @@ def _stability(args: argparse.Namespace) -> int:
         (o.name, f"{o.translation_m:.4f}", f"{o.rotation_deg:.2f}", "yes" if o.stable else "NO") for o in report.objects
     ]
     _print_table(rows)
-    print(f"Stable% ({report.solver}, {report.seconds:g} s): {report.stable_pct:.1f}")
+    # "stable bodies %": of this scene's rigid bodies (holousd eval's Stable% is of the ground truth's objects)
+    n = len(report.objects)
+    stable = sum(o.stable for o in report.objects)
+    print(f"stable bodies ({report.solver}, {report.seconds:g} s): {stable} of {n}, {report.stable_pct:.1f}%")
     if report.cross_check is not None:
         cc = report.cross_check
-        cc_pct = 100 * sum(o.stable for o in cc.objects) / max(1, len(cc.objects))
-        print(f"cross-check {cc.solver}: Stable% {cc_pct:.1f}, agreement {cc.agreement_pct:.1f}%")
+        cc_stable = sum(o.stable for o in cc.objects)
+        cc_pct = 100 * cc_stable / max(1, len(cc.objects))
+        print(f"stable bodies ({cc.solver}, cross-check): {cc_stable} of {len(cc.objects)}, {cc_pct:.1f}%; "
+              f"agreement {cc.agreement_pct:.1f}%")  # fmt: skip
         for a, b in zip(report.objects, cc.objects, strict=True):
             if a.stable != b.stable:
                 print(f"  disagree: {a.name} ({report.solver}: {a.stable}, {cc.solver}: {b.stable})")
     if alone is not None:
-        print(f"alone on support chain: Stable% {alone.stable_pct:.1f}")
+        print(f"stable bodies alone on their support chain: {alone.stable_pct:.1f}%")
         for o in alone.objects:
             verdict = "stable" if o.stable else "UNSTABLE"
             print(f"  {o.name}: {verdict} ({o.translation_m:.4f} m, {o.rotation_deg:.2f} deg)")

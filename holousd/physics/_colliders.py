@@ -21,6 +21,17 @@ from typing import TYPE_CHECKING
 import numpy as np
 from pxr import Usd
 
+from holousd.geometry._hulls import (
+    DecompositionConfig,
+    _as_arrays,
+    convex_decomposition,
+    convex_hull,
+    convexity,
+    cut_above,
+    cut_axis,
+    cut_below,
+)
+
 from ._scene import ColliderParts
 
 if TYPE_CHECKING:
@@ -39,146 +50,6 @@ __all__ = [
     "cut_axis",
     "cut_below",
 ]
-
-
-@dataclass(kw_only=True)
-class DecompositionConfig:
-    """CoACD settings for convex decomposition.
-
-    CoACD (Wei et al., SIGGRAPH 2022) is chosen over V-HACD because it is maintained, deterministic for a given
-    seed, and *collision-aware*: it cuts along concave features measured by a Hausdorff-based concavity, so
-    parts do not bridge openings (a bowl's cavity stays open), which is what contact needs. V-HACD's
-    voxel-based parts tend to fill cavities and is no longer developed.
-    """
-
-    threshold: float = 0.08
-    """Concavity tolerance of each part, relative to the object size (smaller = more, tighter parts)."""
-    max_parts: int = 16
-    """Upper bound on the number of parts (-1 = no bound); parts are merged to meet it."""
-    max_part_vertices: int = 64
-    """Vertex cap per part hull."""
-    preprocess_resolution: int = 40
-    """Voxel resolution of CoACD's manifold pre-processing."""
-    resolution: int = 2000
-    """Surface samples of CoACD's concavity metric (CoACD's default; 500 is about 5x faster on fitted meshes)."""
-    mcts_iterations: int = 150
-    """Iterations of CoACD's Monte-Carlo tree search for each cut (CoACD's default)."""
-    mcts_nodes: int = 20
-    """Child nodes expanded per tree-search step (CoACD's default)."""
-    mcts_max_depth: int = 3
-    """Depth of the cut search (CoACD's default)."""
-    seed: int = 0
-    """Random seed of CoACD's tree search (local to the call; no global seeding)."""
-
-
-def _as_arrays(points: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    return np.asarray(points, dtype=np.float64).reshape(-1, 3), np.asarray(faces, dtype=np.int64).reshape(-1, 3)
-
-
-def convex_hull(points: np.ndarray, faces: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Convex hull of a mesh (or point cloud): ``(points [N, 3], faces [F, 3])`` with outward winding."""
-    import trimesh
-
-    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    hull = trimesh.convex.convex_hull(pts)
-    return np.asarray(hull.vertices, dtype=np.float64), np.asarray(hull.faces, dtype=np.int64)
-
-
-def _volume(points: np.ndarray, faces: np.ndarray) -> float:
-    """Enclosed volume by the divergence theorem: sum over triangles of det(a, b, c) / 6, m^3."""
-    tri = points[faces]  # [F, 3, 3]
-    return float(abs(np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum()) / 6.0)
-
-
-def cut_below(parts: ColliderParts, height: float, *, min_points: int = 4) -> ColliderParts:
-    """Convex parts cut by the horizontal plane ``z = height``, keeping what lies above (world coordinates).
-
-    Each part is taken as convex (its hull is used): the kept part is the hull of its vertices above the plane and
-    of the points where its hull edges cross it, so the part gets a flat base on the plane. Parts entirely below
-    the plane, or left degenerate, are dropped.
-
-    Args:
-        parts: Convex parts, ``(points [N, 3], faces [F, 3])`` each.
-        height: Plane height, metres.
-        min_points: Parts with fewer points left are dropped.
-    """
-    return cut_axis(parts, 2, height, 1.0, min_points=min_points)
-
-
-def cut_above(parts: ColliderParts, height: float, *, min_points: int = 4) -> ColliderParts:
-    """Like :func:`cut_below`, keeping what lies below the plane: each part gets a flat top on it."""
-    return cut_axis(parts, 2, height, -1.0, min_points=min_points)
-
-
-def cut_axis(parts: ColliderParts, axis: int, height: float, side: float, *, min_points: int = 4) -> ColliderParts:
-    """Keep the side ``side * (x[axis] - height) >= 0`` of each convex part (see :func:`cut_below`)."""
-    import trimesh
-
-    out: ColliderParts = []
-    for points, faces in parts:
-        pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-        signed = side * (pts[:, axis] - height)
-        if signed.min() >= 0:
-            out.append((pts, np.asarray(faces, dtype=np.int64).reshape(-1, 3)))
-            continue
-        if signed.max() <= 0:
-            continue
-        try:
-            hull = trimesh.convex.convex_hull(pts)
-        except Exception:  # noqa: BLE001 - qhull fails on flat input: such a part is dropped
-            continue
-        v = np.asarray(hull.vertices)
-        a, b = v[hull.edges_unique[:, 0]], v[hull.edges_unique[:, 1]]
-        crossing = (a[:, axis] - height) * (b[:, axis] - height) < 0
-        t = (height - a[crossing, axis]) / (b[crossing, axis] - a[crossing, axis])
-        section = a[crossing] + t[:, None] * (b[crossing] - a[crossing])
-        section[:, axis] = height
-        kept = np.concatenate([v[side * (v[:, axis] - height) >= 0], section])
-        if len(kept) < min_points or np.ptp(kept[:, axis]) < 1e-6:
-            continue
-        try:
-            out.append(convex_hull(kept))
-        except Exception:  # noqa: BLE001 - degenerate remainder
-            continue
-    return out
-
-
-def convexity(points: np.ndarray, faces: np.ndarray) -> float:
-    """Volume ratio ``V(mesh) / V(hull(mesh))`` in [0, 1]; 1 for a convex mesh. The mesh should be closed."""
-    pts, tri = _as_arrays(points, faces)
-    hp, hf = convex_hull(pts)
-    hull_volume = _volume(hp, hf)
-    if hull_volume <= 0.0:
-        return 1.0
-    return float(min(1.0, _volume(pts, tri) / hull_volume))
-
-
-def convex_decomposition(
-    points: np.ndarray, faces: np.ndarray, config: DecompositionConfig | None = None
-) -> ColliderParts:
-    """Approximate convex decomposition with CoACD (see :class:`DecompositionConfig` for why CoACD).
-
-    Returns:
-        Convex parts, each ``(points [N, 3], faces [F, 3])``, object coordinates.
-    """
-    import coacd
-
-    cfg = config or DecompositionConfig()
-    pts, tri = _as_arrays(points, faces)
-    coacd.set_log_level("error")
-    parts = coacd.run_coacd(
-        coacd.Mesh(pts, tri),
-        threshold=cfg.threshold,
-        max_convex_hull=cfg.max_parts,
-        max_ch_vertex=cfg.max_part_vertices,
-        preprocess_resolution=cfg.preprocess_resolution,
-        resolution=cfg.resolution,
-        mcts_iterations=cfg.mcts_iterations,
-        mcts_nodes=cfg.mcts_nodes,
-        mcts_max_depth=cfg.mcts_max_depth,
-        seed=cfg.seed,
-    )
-    return [(np.asarray(v, dtype=np.float64), np.asarray(f, dtype=np.int64)) for v, f in parts]
 
 
 @dataclass(kw_only=True)

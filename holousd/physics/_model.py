@@ -225,7 +225,7 @@ def _convexify_mesh_colliders(stage: Usd.Stage, *, hull_convex: bool, decompose:
     import trimesh
     from pxr import UsdGeom, UsdPhysics, UsdShade
 
-    from ._colliders import convex_decomposition, convex_hull
+    from holousd.geometry._hulls import convex_decomposition, convex_hull
 
     targets = []
     for prim in stage.Traverse():

@@ -221,7 +221,7 @@ def fit_bound_splats(nodes: list[FitNode], frames: list[Frame], config: FitConfi
     """
     import torch
 
-    from holousd.eval import ssim_torch
+    from holousd.render._ssim import ssim_torch
 
     config = config or FitConfig()
     if not frames:

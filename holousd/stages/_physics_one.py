@@ -1,26 +1,32 @@
-"""The one-geometry physics set-up (opt-in: ``PhysicsSetupConfig(one_geometry=True)`` of the physics stage).
+"""The one-geometry physics set-up: the default of the physics stage (``PhysicsSetupConfig(one_geometry=True)``).
 
-Work in progress towards the default (ARCHITECTURE.md, "one geometry per object"): on the demo scene it is not
-yet as stable as the default set-up (the decompositions of fitted furniture reach centimetres outside the mesh
-and into what rests on it), so the stage does not use it unless asked. Everything done so that an object can
-stand is done to its rendered mesh and its SDF, and the collider is derived from that final mesh alone. In
-order, as small passes over the objects:
+ARCHITECTURE.md, "one geometry per object": everything done so that an object can stand is done to its rendered
+mesh and its SDF, and the collider is derived from that final mesh alone. In order, as small passes over the
+objects:
 
 1. ``clip``: each mesh is trimmed where it runs behind one of the room's walls (the unseen back of something
    standing against a wall; the fit leaves it unbounded there).
-2. ``relations``: the support tree and beside pairs (:func:`holousd.graph.infer_relations`).
-3. ``rest``: breadth-first from the room, each object is set onto its support: the top of a support that others
-   rest on is cut flat at the lowest point of its surface under them (at most ``top_depth`` below its highest
-   point: a fitted top is a bumpy dome of facets); then each child's unseen underside is cut flat, ``clearance``
-   above the higher of the support's mesh and the support's collider under it (deep enough for a base spanning
-   half its width, ``base_depth``; the object moved down when it floats above, by at most ``max_shift``).
-   Whatever of the support's collider still lies inside the child is cut away from the child's mesh and SDF.
-   Children follow their parent's moves.
+2. ``relations``: the support tree and beside pairs (:func:`holousd.graph.infer_relations`: the parent is what
+   an object touches, not what its overhanging ends lie above).
+3. ``rest``: breadth-first from the room, each object is set onto its support. Under each child resting on a
+   support, the support's surface is cut flat at the lowest point of it under the child (at most ``top_depth``
+   below the highest point there, and no deeper than the child can follow), inside the child's footprint (1 cm
+   wider) and no higher than that highest point (a fitted top is a bumpy dome of facets; a wall beside stays);
+   the support's shape is then settled (pass 5) with its decomposition cut along those flat surfaces. Then the
+   child's unseen underside is cut flat, ``clearance`` above the higher of the support's mesh and collider under
+   it (deep enough for a base spanning half its width, ``base_depth``), the object moved down when it floats
+   above, by at most ``max_shift`` from its fitted pose counting its parent's moves (when that brings it onto
+   its support, its base is cut less deep; an object that cannot reach its support is left where it was seen,
+   and the refused move recorded). Whatever of the support's collider still lies inside the child is cut away
+   from the child's mesh and SDF. Children follow their parent's moves.
 4. ``separate``: neighbours whose meshes still overlap are cut apart at the middle of the overlap, across its
    thinnest axis, as two real objects meet at one face.
-5. ``colliders``: the convex hull of the final mesh when it reaches at most ``hull_tolerance`` outside it, else a
-   CoACD decomposition of that mesh (the hull after all when the decomposition reaches no less far); the reach
-   outside the mesh is measured and recorded either way.
+5. ``shape``: the convex hull of the mesh is the collider when it reaches at most ``hull_tolerance`` outside
+   it; else a decomposition of that mesh (:func:`holousd.geometry.plane_decomposition`: plane cuts until every
+   piece lies within ``hull_tolerance`` of its hull, at most ``max_parts``). When the decomposition reaches at
+   most ``convexify`` outside the mesh, the mesh and SDF become the union of its parts (the rendered surface
+   fills its concavities by at most that much) and the collider is exactly the rendered solid; else the reach
+   is what it is, and is recorded.
 6. ``mass``: mass, centre of mass and inertia (principal moments and axes) of the final mesh at ``density``.
 
 Each object records (``HoloGeometryAPI``): its shift from the pose the fit gave (``holo:geometry:fitShift``), its
@@ -35,14 +41,21 @@ triangle-mesh contact launched furniture resting on the fitted room shell.
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 from holousd._errors import SceneError
-from holousd.geometry._contact import collider_reach, cut_by_plane, mass_properties, overlap, subtract
+from holousd.geometry._contact import (
+    collider_reach,
+    cut_by_plane,
+    mass_properties,
+    overlap,
+    subtract,
+    without_zero_area_faces,
+)
+from holousd.geometry._decompose import Decomposition, convexify, plane_decomposition
 from holousd.graph import RelationConfig, Relations, infer_relations
 from holousd.stages._physics_setup import (
     PHYSICS_LAYER,
@@ -100,13 +113,20 @@ class PhysicsSetupConfig:
     """Overlaps smaller than this are left alone (touching, not intersecting), m^3 (0.1 cm^3)."""
     max_separation_loss: float = 0.3
     """A cut between neighbours may remove at most this fraction of an object's volume (else it is not made)."""
-    max_parts: int = 8
+    max_parts: int = 32
     """Most convex parts of a decomposition."""
+    decomposition: str = "planes"
+    """'planes': :func:`holousd.geometry.plane_decomposition` (plane cuts until each piece lies within
+    ``hull_tolerance`` of its hull: fitted furniture is slabs and posts); 'coacd': CoACD with the quick settings
+    of ``decomposition_iterations`` (its parts of a fitted table or shelf reach 6-12 cm outside the mesh)."""
     decomposition_iterations: int | None = 20
-    """CoACD tree-search iterations with a coarse (300-sample) concavity metric, a one-level search and
-    concavity threshold 0.1: on the demo's fitted meshes as close to the mesh as tighter settings (0.05, 40
-    iterations: within 1 cm) at a tenth of the time (0.2-7 s an object). None runs
-    :func:`holousd.physics.convex_decomposition` with its full settings."""
+    """CoACD only: tree-search iterations with a coarse (300-sample) concavity metric, a one-level search and
+    concavity threshold 0.1. None runs :func:`holousd.physics.convex_decomposition` with its full settings."""
+    convexify: float = 0.01
+    """When an object's decomposition reaches at most this far outside its mesh, metres, the mesh (and SDF)
+    becomes the union of the decomposition's parts: the rendered surface fills its concavities by at most that
+    much (about what the object's own depth and masks allow), and the collider is then exactly the rendered
+    solid. 0: never."""
     background_collider: str = "slabs"
     """'slabs': axis-aligned floor and wall slabs fitted to the background mesh (falls back to 'mesh' when no
     floor plane is found); 'mesh': the background's triangle mesh (approximation none)."""
@@ -132,6 +152,12 @@ class _Body:
     fit_pose: Pose
     edits: tuple[str, ...] = ()
     refused: float = 0.0
+    planes: tuple[tuple[tuple[float, float, float], float], ...] = ()
+    """Flat support surfaces cut into the mesh (object coordinates, ``normal . x = offset``): the collider's
+    decomposition cuts along them, so no convex part bridges above a surface something rests on."""
+    collider: tuple[str, list[MeshData], float] | None = None
+    """The collider derived from the current mesh (kind, parts in object coordinates, reach outside the mesh),
+    once :func:`_shaped` has settled the mesh; None while the mesh may still change."""
 
     def world(self) -> tuple[np.ndarray, np.ndarray]:
         """The mesh in world coordinates."""
@@ -157,7 +183,8 @@ class _Body:
             grid = _grid_points(sdf)
             outside = off_obj - grid @ n_obj  # > 0 on the removed side: distance to the half-space
             sdf = replace(sdf, grid=np.maximum(sdf.grid, outside.reshape(sdf.grid.shape)).astype(np.float32))
-        return replace(self, mesh=MeshData(points=points, faces=faces), sdf=sdf, edits=(*self.edits, edit))
+        return replace(self, mesh=MeshData(points=points, faces=faces), sdf=sdf, edits=(*self.edits, edit),
+                       collider=None)
 
     def minus_convex(self, parts: list[tuple[np.ndarray, np.ndarray]], edit: str) -> _Body:
         """The body with whatever of the convex world-space ``parts`` (another object's collider) lies inside it
@@ -181,7 +208,26 @@ class _Body:
                 inside_part = (grid @ planes[:, :3].T + planes[:, 3]).max(axis=1)  # < 0 inside the part
                 values = np.maximum(values, -inside_part)
             sdf = replace(sdf, grid=values.reshape(sdf.grid.shape).astype(np.float32))
-        return replace(self, mesh=MeshData(points=points, faces=faces), sdf=sdf, edits=(*self.edits, edit))
+        return replace(self, mesh=MeshData(points=points, faces=faces), sdf=sdf, edits=(*self.edits, edit),
+                       collider=None)
+
+    def plus_convex(self, parts: list[tuple[np.ndarray, np.ndarray]], mesh: MeshData, edit: str) -> _Body:
+        """The body whose solid is ``mesh``, the union of its own convex ``parts`` (object coordinates) that
+        cover its old mesh; its SDF takes the parts' insides."""
+        from scipy.spatial import ConvexHull, QhullError
+
+        sdf = self.sdf
+        if sdf is not None:
+            grid = _grid_points(sdf)
+            values = sdf.grid.reshape(-1).astype(np.float64)
+            for p, _ in parts:
+                try:
+                    planes = ConvexHull(p).equations  # [H, 4]: n . x + d <= 0 inside
+                except (QhullError, ValueError):
+                    continue
+                values = np.minimum(values, (grid @ planes[:, :3].T + planes[:, 3]).max(axis=1))
+            sdf = replace(sdf, grid=values.reshape(sdf.grid.shape).astype(np.float32))
+        return replace(self, mesh=mesh, sdf=sdf, edits=(*self.edits, edit), collider=None)
 
 
 def _grid_points(sdf: SdfField) -> np.ndarray:
@@ -240,9 +286,10 @@ def _hits_below(body: _Body, support: tuple[np.ndarray, np.ndarray], band: float
     from holousd.graph._relations import _trimesh
 
     points = body.world()[0]
-    low = points[points[:, 2] <= float(points[:, 2].min()) + band]
+    bottom = float(points[:, 2].min())
+    low = points[points[:, 2] <= bottom + band]
     origins = low.copy()
-    origins[:, 2] = float(points[:, 2].max())
+    origins[:, 2] = min(float(points[:, 2].max()), bottom + band + 0.02)  # below a board above the body
     hits, _, _ = RayMeshIntersector(_trimesh(support)).intersects_location(
         origins, np.tile([0.0, 0.0, -1.0], (len(origins), 1)), multiple_hits=False)  # fmt: skip
     return np.asarray(hits, float).reshape(-1, 3)
@@ -258,12 +305,12 @@ def _support_height(body: _Body, support: tuple[np.ndarray, np.ndarray] | float,
 
 
 def _rest(bodies: dict[str, _Body], relations: Relations, room: tuple[np.ndarray, np.ndarray] | float | None,
-          colliders: Callable[[_Body], tuple[str, list[MeshData], float]],
           config: PhysicsSetupConfig) -> dict[str, _Body]:  # fmt: skip
     """Set every object onto its support, parents first (see the module docstring, pass 3). ``room``: the
-    floor's height (slab colliders), the room's world mesh, or None (objects on the room stay as they are);
-    ``colliders``: a body's collider (from its current mesh)."""
+    floor's height (slab colliders), the room's world mesh, or None (objects on the room stay as they are).
+    A support's shape is settled (:func:`_shaped`) before its children are set onto it."""
     out = dict(bodies)
+    flattened: set[str] = set()
     up = np.array([0.0, 0.0, 1.0])
     band = config.relations.bottom_band
     for name in _order(relations):
@@ -272,9 +319,12 @@ def _rest(bodies: dict[str, _Body], relations: Relations, room: tuple[np.ndarray
         parent = relations.support.get(name, BACKGROUND)
         support_parts: list[tuple[np.ndarray, np.ndarray]] = []
         if parent != BACKGROUND and parent in out:  # the support's top, flat where its children rest on it
-            out[parent] = _flatten_top(out[parent], [out[c] for c in relations.children(parent) if c in out],
-                                       config)  # fmt: skip
-            support_parts = [(out[parent].pose.apply(p.points), p.faces) for p in colliders(out[parent])[1]]
+            if parent not in flattened:  # once, before any of its children is set on it
+                flattened.add(parent)
+                out[parent] = _flatten_top(out[parent], [out[c] for c in relations.children(parent) if c in out],
+                                           config)  # fmt: skip
+            out[parent] = _shaped(out[parent], config)
+            support_parts = [(out[parent].pose.apply(p.points), p.faces) for p in out[parent].collider[1]]
         body = out[name]
         surface = room if parent == BACKGROUND else (out[parent].world() if parent in out else None)
         if surface is None:
@@ -290,14 +340,20 @@ def _rest(bodies: dict[str, _Body], relations: Relations, room: tuple[np.ndarray
         depth = _base_depth(points, config.base_depth)
         drop = (base - depth) - bottom  # < 0: move down so that the underside is cut `depth` deep
         if drop < 0:
-            if -drop <= config.max_shift:
-                shift = np.array([0.0, 0.0, drop])
+            moved = float(np.linalg.norm(np.asarray(body.pose.translation, float)
+                                         - np.asarray(body.fit_pose.translation, float)))  # fmt: skip
+            allowed = max(0.0, config.max_shift - moved)  # with its parent's moves, at most max_shift in all
+            # the whole move, or as much of it as allowed when that still brings the object onto its support (its
+            # base then cut less deep); an object that cannot reach its support stays where it was seen
+            step = min(-drop, allowed) if bottom - base <= allowed else 0.0
+            if step > 0:
+                shift = np.array([0.0, 0.0, -step])
                 for other in [name, *_descendants(relations, name)]:
                     if other in out:
                         out[other] = replace(out[other].moved(shift), edits=(*out[other].edits, "shift"))
                 body = out[name]
-            else:
-                body = replace(body, refused=float(-drop))
+            if -drop > step:  # the rest is refused: the base is cut less deep (or the object floats)
+                body = replace(body, refused=float(-drop - step))
         body = body.cut(up, base, "cut:base")
         if support_parts:  # what of the support's collider still lies inside the child
             body = body.minus_convex(support_parts, "cut:parent")
@@ -306,28 +362,39 @@ def _rest(bodies: dict[str, _Body], relations: Relations, room: tuple[np.ndarray
 
 
 def _flatten_top(parent: _Body, children: list[_Body], config: PhysicsSetupConfig) -> _Body:
-    """Cut a support's top flat at the lowest point of its surface under the children resting on that top (at
-    most ``top_depth`` below its highest point): a fitted top is a shallow dome of facets, on which a child's
-    flat base would rock. A flat top, or a support whose children rest lower (a shelf's boards), is left as is."""
-    if "cut:top" in parent.edits or not children:
+    """Cut a support's surface flat under each child resting on it: what of the support stands above the
+    lowest point of its surface under the child (at most ``top_depth`` below the highest point there, and no
+    deeper than the child can follow), inside the child's footprint (1 cm wider) and no higher than that
+    surface's highest point under the child, is cut away from the support's mesh and SDF. A fitted top is a
+    bumpy dome of facets, on which a child's flat base would rock; a wall or rim beside the child and a board
+    above it stay (but for what of them lies within 1 cm of the footprint, below that highest point)."""
+    from holousd.physics import convex_hull
+
+    if not children:
         return parent
-    points = parent.world()[0]
-    top = float(points[:, 2].max())
-    lows = []
+    body = parent
     for child in children:
+        hits = _hits_below(child, body.world(), config.relations.bottom_band)
+        if len(hits) == 0:
+            continue
+        highest = float(hits[:, 2].max())
+        bottom = float(child.world()[0][:, 2].min())
+        # the lowest of the surface under the child (robust to a stray dent), no deeper than the child can follow
+        # (half the largest move: its own base cut takes the rest)
+        plane = max(float(np.percentile(hits[:, 2], 10)), highest - config.top_depth, bottom - config.max_shift / 2)
+        if highest - plane < 5e-4:
+            continue
         c = child.world()[0]
-        if abs(float(c[:, 2].min()) - top) > config.max_shift + config.top_depth:
-            continue  # it rests on something lower than the top
-        hits = _hits_below(child, parent.world(), config.relations.bottom_band)
-        hits = hits[hits[:, 2] >= top - config.top_depth]
-        if len(hits):
-            lows.append(float(np.percentile(hits[:, 2], 10)))  # robust to a stray dent
-    if not lows:
-        return parent
-    plane = max(float(np.min(lows)), top - config.top_depth)
-    if top - plane < 5e-4:
-        return parent
-    return parent.cut(np.array([0.0, 0.0, -1.0]), -plane, "cut:top")
+        lo = np.array([*(c[:, :2].min(axis=0) - 0.01), plane])
+        hi = np.array([*(c[:, :2].max(axis=0) + 0.01), highest + 1e-3])  # no higher: a wall beside stays
+        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+        cut = body.minus_convex([convex_hull(corners)], f"cut:top:{child.name}")
+        if cut is not body:
+            rotation = cut.pose.matrix()[:3, :3]
+            normal = rotation.T @ np.array([0.0, 0.0, 1.0])
+            offset = plane - float(np.asarray(cut.pose.translation, float)[2])
+            body = replace(cut, planes=(*cut.planes, (tuple(float(v) for v in normal), offset)))
+    return body
 
 
 def _separate(bodies: dict[str, _Body], relations: Relations, config: PhysicsSetupConfig) -> dict[str, _Body]:
@@ -353,10 +420,17 @@ def _separate(bodies: dict[str, _Body], relations: Relations, config: PhysicsSet
     return out
 
 
-def _decompose(mesh: MeshData, config: PhysicsSetupConfig) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Convex decomposition of ``mesh``: the quick CoACD settings, or holousd.physics' full ones."""
+def _decompose(mesh: MeshData, config: PhysicsSetupConfig,
+               planes: tuple = ()) -> list[tuple[np.ndarray, np.ndarray]]:  # fmt: skip
+    """Convex decomposition of ``mesh``: plane cuts (``decomposition='planes'``, first along ``planes``) or
+    CoACD."""
     from holousd.physics import DecompositionConfig, convex_decomposition
 
+    if config.decomposition == "planes":
+        found = plane_decomposition((mesh.points, mesh.faces), tolerance=config.hull_tolerance,
+                                    max_parts=config.max_parts,
+                                    cuts=[(np.asarray(n), o) for n, o in planes])  # fmt: skip
+        return found.parts if found is not None else []
     cfg = DecompositionConfig(max_parts=config.max_parts, seed=config.seed)
     if config.decomposition_iterations is not None:  # quick settings: coarse concavity metric, shallow search
         cfg = DecompositionConfig(max_parts=config.max_parts, seed=config.seed, threshold=0.1,
@@ -365,7 +439,7 @@ def _decompose(mesh: MeshData, config: PhysicsSetupConfig) -> list[tuple[np.ndar
     return convex_decomposition(mesh.points, mesh.faces, cfg)
 
 
-def _collider(mesh: MeshData, config: PhysicsSetupConfig) -> tuple[str, list[MeshData], float]:
+def _collider(mesh: MeshData, config: PhysicsSetupConfig, planes: tuple = ()) -> tuple[str, list[MeshData], float]:
     """The hull of the mesh when it stays within ``hull_tolerance`` of it, else a decomposition of the mesh;
     with the chosen collider's reach outside the mesh, metres."""
     from holousd.physics import convex_hull
@@ -374,11 +448,32 @@ def _collider(mesh: MeshData, config: PhysicsSetupConfig) -> tuple[str, list[Mes
     reach = collider_reach([hull], (mesh.points, mesh.faces), seed=config.seed)
     if reach <= config.hull_tolerance:
         return "hull", [MeshData(points=hull[0], faces=hull[1])], reach
-    parts = _decompose(mesh, config)
+    parts = _decompose(mesh, config, planes)
     part_reach = collider_reach(parts, (mesh.points, mesh.faces), seed=config.seed) if parts else np.inf
     if part_reach >= reach:  # the decomposition does not follow the mesh better: the simpler collider
         return "hull", [MeshData(points=hull[0], faces=hull[1])], reach
     return "decomposition", [MeshData(points=p, faces=f) for p, f in parts], part_reach
+
+
+def _shaped(body: _Body, config: PhysicsSetupConfig) -> _Body:
+    """The body with its collider derived from its mesh (``body.collider``); when that is a decomposition
+    reaching at most ``convexify`` outside the mesh, the mesh and SDF become the union of its parts (the
+    collider then is the rendered solid). A body already shaped comes back as it is."""
+    if body.collider is not None:
+        return body
+    body = replace(body, mesh=_drop_degenerate(body.mesh))  # the collider from the mesh as it will be authored
+    kind, parts, reach = _collider(body.mesh, config, body.planes)
+    if kind != "decomposition" or not 0.0 < reach <= config.convexify:
+        return replace(body, collider=(kind, parts, reach))
+    united = convexify((body.mesh.points, body.mesh.faces),
+                       Decomposition(parts=[(p.points, p.faces) for p in parts], concavity_m=reach, excess_m3=0.0))
+    if united is None:
+        return replace(body, collider=(kind, parts, reach))
+    united = without_zero_area_faces(united)  # a boolean union leaves slivers; the splat binding rejects them
+    grown = body.plus_convex([(p.points, p.faces) for p in parts], MeshData(points=united[0], faces=united[1]),
+                             f"convexify:{100 * reach:.1f}cm")  # fmt: skip
+    return replace(grown, collider=(kind, parts, collider_reach([(p.points, p.faces) for p in parts], united,
+                                                                seed=config.seed)))  # fmt: skip
 
 
 def _drop_degenerate(mesh: MeshData) -> MeshData:
@@ -429,21 +524,12 @@ def setup_physics(scene: SceneGraph, config: PhysicsSetupConfig | None = None,
     if config.clip_to_walls:
         bodies = _clip(bodies, walls, config.clearance)
     relations = infer_relations({n: b.world() for n, b in bodies.items()}, config.relations)
-    cache: dict[str, tuple[MeshData, tuple[str, list[MeshData], float]]] = {}
-
-    def colliders(body: _Body) -> tuple[str, list[MeshData], float]:
-        """The body's collider from its current mesh (computed once per mesh)."""
-        known = cache.get(body.name)
-        if known is None or known[0] is not body.mesh:
-            cache[body.name] = known = (body.mesh, _collider(body.mesh, config))
-        return known[1]
-
     if config.rest:
         room_surface = float(floor) if slabs else ((bg_world.points, bg_world.faces) if bg_world is not None else None)
-        bodies = _rest(bodies, relations, room_surface, colliders, config)
+        bodies = _rest(bodies, relations, room_surface, config)
     if config.separate:
         bodies = _separate(bodies, relations, config)
-    bodies = {n: replace(b, mesh=_drop_degenerate(b.mesh)) for n, b in bodies.items()}
+    bodies = {n: _shaped(b, config) for n, b in bodies.items()}
 
     scene.push_layer(Path(out_dir) / PHYSICS_LAYER, provenance=config.provenance, replace=True)
     material = dict(static_friction=config.friction, dynamic_friction=config.friction,
@@ -469,7 +555,7 @@ def setup_physics(scene: SceneGraph, config: PhysicsSetupConfig | None = None,
         shift = np.asarray(body.pose.translation, float) - np.asarray(body.fit_pose.translation, float)
         if np.any(shift != 0.0):
             scene.set_pose(name, body.pose)
-        kind, parts, reach = colliders(body)
+        kind, parts, reach = body.collider
         scene.set_collider(name, Collider(approximation="convexDecomposition" if len(parts) > 1 else "convexHull",
                                           parts=parts))  # fmt: skip
         props = mass_properties((body.mesh.points, body.mesh.faces), config.density)

@@ -1,6 +1,11 @@
 """Physics set-up stage: support tree, beside pairs, colliders, mass and material (layer ``20_physics.usda``).
 
-What it writes over the fitted geometry, per object:
+By default (``one_geometry=True``) the stage runs :mod:`holousd.stages._physics_one`: every edit made to the
+rendered mesh and SDF, each collider derived from the final mesh. This module's own set-up, described below, is
+the earlier one, kept behind ``one_geometry=False`` for comparison: it edits colliders apart from the rendered
+meshes, which ``holousd validate`` reports.
+
+What the earlier set-up writes over the fitted geometry, per object:
 
 - ``holo:supportedBy`` / ``holo:beside`` from :func:`holousd.graph.infer_relations` (the node whose surface lies
   directly below the object's lowest points, background when nothing else; siblings within ~1 cm);
@@ -111,10 +116,12 @@ class PhysicsSetupConfig:
     metres."""
     relations: RelationConfig = field(default_factory=RelationConfig)
     """Support / beside inference settings."""
-    one_geometry: bool = False
-    """Use the one-geometry set-up instead (:mod:`holousd.stages._physics_one`: every edit made to the rendered
-    mesh and SDF, the collider derived from the final mesh alone). Opt-in while it is less stable than this one
-    on fitted scenes; density, friction, restitution, slab and relation settings carry over."""
+    one_geometry: bool = True
+    """Use the one-geometry set-up (:mod:`holousd.stages._physics_one`: every edit made to the rendered mesh and
+    SDF, the collider derived from the final mesh alone); density, friction, restitution, clearance, slab and
+    relation settings carry over (its decomposition has its own settings). False: the earlier set-up, which
+    cuts, carves and extends colliders apart from the rendered mesh and settles objects by their colliders (kept
+    for comparison; ``holousd validate`` reports its scenes' colliders reaching outside their meshes)."""
     seed: int = 0
     """Seed of CoACD and of the surface sampling."""
     provenance: str = "s2_physics_setup"
@@ -546,12 +553,14 @@ def _descendants(relations: Relations, name: str) -> list[str]:
 
 def _drop_degenerate(mesh: MeshData) -> MeshData | None:
     """``mesh`` without its zero-area faces (the splat binding rejects them), or None when it has none."""
+    from holousd.geometry._contact import without_zero_area_faces
+
     tri = mesh.points[mesh.faces]  # [F, 3, 3]
     area2 = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-    keep = area2 >= 1e-12
-    if keep.all():
+    if np.all(area2 >= 1e-12):
         return None
-    return MeshData(points=mesh.points, faces=mesh.faces[keep])
+    points, faces = without_zero_area_faces((mesh.points, mesh.faces))  # a closed mesh stays closed
+    return MeshData(points=points, faces=faces)
 
 
 def _decompose(mesh: MeshData, config: PhysicsSetupConfig) -> list[tuple[np.ndarray, np.ndarray]]:
@@ -808,8 +817,7 @@ def _one_geometry(scene: SceneGraph, config: PhysicsSetupConfig,
 
     one = _physics_one.PhysicsSetupConfig(density=config.density, friction=config.friction,
                                           restitution=config.restitution, clip_to_walls=config.clip_to_walls,
-                                          clearance=config.clearance, max_parts=config.max_parts,
-                                          decomposition_iterations=config.decomposition_iterations,
+                                          clearance=config.clearance,
                                           background_collider=config.background_collider,
                                           slab_thickness=config.slab_thickness, relations=config.relations,
                                           seed=config.seed, provenance=config.provenance)  # fmt: skip

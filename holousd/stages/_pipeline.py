@@ -136,7 +136,6 @@ PRESETS: dict[str, PipelineConfig] = {
     "best": PipelineConfig(
         name="best",
         fit=_fit.BEST,
-        physics=_physics.PhysicsSetupConfig(decomposition_iterations=None),
         appearance=AppearanceStageConfig(iterations=1000, frames=100, spacing_px=1.5, max_splats=50_000),
     ),  # fmt: skip
 }

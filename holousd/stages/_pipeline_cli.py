@@ -126,6 +126,8 @@ def format_evaluation(d: dict) -> str:
             if p.get("cross_check")
             else ""
         ),
+        f"geometry records: worst collider reach outside the mesh {f(p.get('max_collider_reach_cm'))} cm  "
+        f"penetration {f(p.get('max_penetration_cm'))} cm  move from the fit {f(p.get('max_fit_shift_cm'))} cm",
         f"cost:             {f(c['total_s'], '.1f')} s  peak {f(c['peak_mem_mb'], '.0f')} MiB  "
         + "  ".join(f"{k} {v:.1f}s" for k, v in c["stages"].items()),
         "",
