@@ -41,6 +41,7 @@ triangle-mesh contact launched furniture resting on the fitted room shell.
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -189,8 +190,6 @@ class _Body:
     def minus_convex(self, parts: list[tuple[np.ndarray, np.ndarray]], edit: str) -> _Body:
         """The body with whatever of the convex world-space ``parts`` (another object's collider) lies inside it
         removed from its mesh and SDF."""
-        from scipy.spatial import ConvexHull, QhullError
-
         inverse = np.linalg.inv(self.pose.matrix())
         local = [(p @ inverse[:3, :3].T + inverse[:3, 3], f) for p, f in parts]
         (points, faces), removed = subtract((self.mesh.points, self.mesh.faces), local)
@@ -198,14 +197,8 @@ class _Body:
             return self
         sdf = self.sdf
         if sdf is not None:
-            grid = _grid_points(sdf)
             values = sdf.grid.reshape(-1).astype(np.float64)
-            for p, _ in local:
-                try:
-                    planes = ConvexHull(p).equations  # [H, 4]: n . x + d <= 0 inside
-                except (QhullError, ValueError):
-                    continue
-                inside_part = (grid @ planes[:, :3].T + planes[:, 3]).max(axis=1)  # < 0 inside the part
+            for inside_part in _part_distances(sdf, local):  # < 0 inside the part
                 values = np.maximum(values, -inside_part)
             sdf = replace(sdf, grid=values.reshape(sdf.grid.shape).astype(np.float32))
         return replace(self, mesh=MeshData(points=points, faces=faces), sdf=sdf, edits=(*self.edits, edit),
@@ -214,20 +207,27 @@ class _Body:
     def plus_convex(self, parts: list[tuple[np.ndarray, np.ndarray]], mesh: MeshData, edit: str) -> _Body:
         """The body whose solid is ``mesh``, the union of its own convex ``parts`` (object coordinates) that
         cover its old mesh; its SDF takes the parts' insides."""
-        from scipy.spatial import ConvexHull, QhullError
-
         sdf = self.sdf
         if sdf is not None:
-            grid = _grid_points(sdf)
             values = sdf.grid.reshape(-1).astype(np.float64)
-            for p, _ in parts:
-                try:
-                    planes = ConvexHull(p).equations  # [H, 4]: n . x + d <= 0 inside
-                except (QhullError, ValueError):
-                    continue
-                values = np.minimum(values, (grid @ planes[:, :3].T + planes[:, 3]).max(axis=1))
+            for inside_part in _part_distances(sdf, parts):
+                values = np.minimum(values, inside_part)
             sdf = replace(sdf, grid=values.reshape(sdf.grid.shape).astype(np.float32))
         return replace(self, mesh=mesh, sdf=sdf, edits=(*self.edits, edit), collider=None)
+
+
+def _part_distances(sdf: SdfField, parts: list[tuple[np.ndarray, np.ndarray]]) -> Iterator[np.ndarray]:
+    """For each convex part (object coordinates) with a hull, [X*Y*Z] signed plane distances of the SDF's
+    samples to it (max over its hull's face planes: < 0 inside, exact there); degenerate parts are skipped."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    grid = _grid_points(sdf)
+    for p, _ in parts:
+        try:
+            planes = ConvexHull(p).equations  # [H, 4]: n . x + d <= 0 inside
+        except (QhullError, ValueError):
+            continue
+        yield (grid @ planes[:, :3].T + planes[:, 3]).max(axis=1)
 
 
 def _grid_points(sdf: SdfField) -> np.ndarray:
