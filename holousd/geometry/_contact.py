@@ -142,6 +142,16 @@ def overlap(a: Mesh, b: Mesh, *, min_volume: float = 1e-9) -> Overlap:
                    thin_axis=axes[int(np.argmin(extents))])
 
 
+def area_samples(tri: np.ndarray, area: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:
+    """[count, 3] points drawn uniformly on triangles ``tri`` [F, 3, 3] (faces picked by ``area`` [F])."""
+    pick = rng.choice(len(tri), size=count, p=area / area.sum())
+    r = rng.random((count, 2))
+    flip = r.sum(1) > 1
+    r[flip] = 1 - r[flip]
+    t = tri[pick]
+    return t[:, 0] + r[:, :1] * (t[:, 1] - t[:, 0]) + r[:, 1:] * (t[:, 2] - t[:, 0])
+
+
 def collider_reach(parts: list[Mesh], mesh: Mesh, *, samples: int = 2000, seed: int = 0,
                    hulls: bool = False) -> float:  # fmt: skip
     """How far a collider reaches outside the mesh it stands for: the largest distance from a point of the
@@ -168,12 +178,7 @@ def collider_reach(parts: list[Mesh], mesh: Mesh, *, samples: int = 2000, seed: 
             continue
         count = max(1, int(round(samples * float(area.sum()) / total)))
         tri = np.asarray(p, float)[np.asarray(f, np.int64)]
-        pick = rng.choice(len(tri), size=count, p=area / area.sum())
-        r = rng.random((count, 2))
-        flip = r.sum(1) > 1
-        r[flip] = 1 - r[flip]
-        t = tri[pick]
-        points.append(t[:, 0] + r[:, :1] * (t[:, 1] - t[:, 0]) + r[:, 1:] * (t[:, 2] - t[:, 0]))
+        points.append(area_samples(tri, area, count, rng))
     if not points:
         return 0.0
     pts = np.concatenate(points)

@@ -54,16 +54,13 @@ class _Piece:
 
 def _surface_samples(points: np.ndarray, faces: np.ndarray, extra: int, rng: np.random.Generator) -> np.ndarray:
     """A mesh's vertices, its face centroids and ``extra`` area-weighted surface samples."""
+    from holousd.geometry._contact import area_samples
+
     tri = points[faces]
     out = [points, tri.mean(axis=1)]
     area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
     if extra > 0 and area.sum() > 0:
-        pick = rng.choice(len(tri), size=extra, p=area / area.sum())
-        r = rng.random((extra, 2))
-        flip = r.sum(1) > 1
-        r[flip] = 1 - r[flip]
-        t = tri[pick]
-        out.append(t[:, 0] + r[:, :1] * (t[:, 1] - t[:, 0]) + r[:, 1:] * (t[:, 2] - t[:, 0]))
+        out.append(area_samples(tri, area, extra, rng))
     return np.concatenate(out)
 
 
