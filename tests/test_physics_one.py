@@ -365,3 +365,52 @@ def test_collider_reach_is_not_fooled_by_slivers_of_a_boolean_union() -> None:
     assert collider_reach(found.parts, united) < 1e-4  # the union is the parts: nothing reaches outside
     hull = trimesh.Trimesh(*ell).convex_hull
     assert collider_reach([(np.asarray(hull.vertices), np.asarray(hull.faces))], united) > 0.1
+
+
+def test_inside_is_ray_parity_without_chance(monkeypatch: pytest.MonkeyPatch) -> None:
+    from holousd.geometry._contact import inside
+
+    def no_chance(*_: object, **__: object) -> None:  # trimesh's contains falls back to an OS-seeded direction
+        raise AssertionError("inside() must not draw a random direction")
+
+    monkeypatch.setattr(trimesh.util, "random_generator", no_chance)
+    rng = np.random.default_rng(3)
+    box = trimesh.creation.box(extents=(0.4, 0.2, 0.1))
+    pts = rng.uniform(-0.3, 0.3, (4000, 3))
+    pts = pts[np.min(np.abs(np.abs(pts) - [0.2, 0.1, 0.05]), axis=1) > 1e-4]  # none on the surface itself
+    np.testing.assert_array_equal(inside(box, pts), np.all(np.abs(pts) < [0.2, 0.1, 0.05], axis=1))
+    ball = trimesh.creation.icosphere(subdivisions=3, radius=0.1)
+    pts = rng.uniform(-0.12, 0.12, (4000, 3))
+    r = np.linalg.norm(pts, axis=1)
+    keep = (r < 0.098) | (r > 0.1005)  # clear of the facets' chord error
+    assert np.array_equal(inside(ball, pts[keep]), r[keep] < 0.098)
+    assert np.array_equal(inside(ball, pts), inside(ball, pts))
+
+
+def _turned(mesh: tuple[np.ndarray, np.ndarray], degrees: float) -> tuple[np.ndarray, np.ndarray]:
+    c, s = np.cos(np.radians(degrees)), np.sin(np.radians(degrees))
+    return mesh[0] @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]).T, mesh[1]
+
+
+def test_a_room_turned_about_z_keeps_its_walls(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from holousd.stages._physics_setup import _room_planes, _room_slabs
+
+    room = _turned(_union(_box((-2, -2, -0.1), (2, 2, 0.0)), _box((-2, 1.9, 0.0), (2, 2.0, 2.5)),
+                          _box((1.9, -2, 0.0), (2.0, 2.0, 2.5))), 30.0)  # fmt: skip
+    floor, walls = _room_planes(MeshData(points=room[0], faces=room[1]))
+    turn = _turned((np.array([[0.0, -1.0, 0.0], [-1.0, 0.0, 0.0]]), None), 30.0)[0]
+    assert floor == pytest.approx(0.0) and len(walls) == 2
+    for wall in walls:  # each wall's inner face, turned with the room, at 1.9 m from the centre
+        k = int(np.argmax(turn @ np.asarray(wall.normal)))
+        assert np.asarray(wall.normal) @ turn[k] == pytest.approx(1.0, abs=1e-6) and wall.offset == pytest.approx(-1.9)
+    slabs = _room_slabs(MeshData(points=room[0], faces=room[1]), 0.2)
+    for wall, slab in zip(walls, slabs[1:], strict=True):  # a slab lies behind its wall, its face on the plane
+        depth = wall.depth(slab.points)
+        assert depth.min() == pytest.approx(0.0, abs=1e-9) and depth.max() == pytest.approx(0.2)
+    monkeypatch.setattr(f"{__name__}.ROOM", room)
+    crate = _turned(_box((-1.0, 1.7, 0.0), (-0.8, 1.95, 0.2)), 30.0)  # runs 5 cm into the turned wall
+    scene = _scene(tmp_path, {"crate": crate})
+    (rec,) = setup_physics(scene, PhysicsSetupConfig()).objects
+    assert "clip:wall" in rec.edits and rec.penetration_m < 1e-4 and rec.collider_reach_m < 0.005
+    behind = max(float(w.depth(_world(scene, "crate")).max()) for w in walls)
+    assert behind == pytest.approx(-0.001, abs=1e-5)  # cut flat 1 mm in front of the wall, along its normal

@@ -11,6 +11,7 @@ from holousd.graph import Relations
 from holousd.physics import cut_above, cut_axis, cut_below
 from holousd.stages._physics_setup import (
     PhysicsSetupConfig,
+    Wall,
     _carve,
     _clip_to_walls,
     _contents,
@@ -95,10 +96,12 @@ def test_mesh_is_clipped_at_the_wall_it_runs_into() -> None:
     p, f = _box((1.8, 0.0, 0.0), (2.2, 0.5, 1.0))  # 20 cm past a wall at x = 2.0 facing -x
     pose = Pose(translation=[0.1, 0.0, 0.0])
     local = MeshData(points=p - [0.1, 0.0, 0.0], faces=f)
-    trimmed, removed = _clip_to_walls(local, pose, [(0, -1.0, 2.0)], clearance=0.001)
+    trimmed, removed = _clip_to_walls(local, pose, [Wall(normal=(-1.0, 0.0, 0.0), offset=-2.0)],
+                                     clearance=0.001)  # fmt: skip
     world = pose.apply(trimmed.points)
     assert world[:, 0].max() == pytest.approx(1.999, abs=1e-5) and removed == pytest.approx(0.201 * 0.5 * 1.0, rel=1e-3)
-    same, none = _clip_to_walls(local, pose, [(0, 1.0, -2.0)], clearance=0.001)  # a wall far away
+    far = Wall(normal=(1.0, 0.0, 0.0), offset=-2.0)  # a wall far away
+    same, none = _clip_to_walls(local, pose, [far], clearance=0.001)
     assert same is local and none == 0.0
 
 

@@ -245,7 +245,7 @@ def test_object_pushed_out_of_a_wall() -> None:
 def test_room_slabs_match_the_ground_truth_room(capture: Path) -> None:
     import trimesh
 
-    from holousd.stages._physics_setup import _room_slabs
+    from holousd.stages._physics_setup import _room_planes, _room_slabs
     from holousd.usd import MeshData
 
     room = trimesh.load(capture / "gt" / "meshes" / "background.ply", force="mesh", process=False)
@@ -260,6 +260,14 @@ def test_room_slabs_match_the_ground_truth_room(capture: Path) -> None:
         if abs(abs(v) - 2.3) < 1e-3 or abs(abs(v) - 2.0) < 1e-3
     )
     assert {-2.3, 2.3, -2.0, 2.0} <= set(inner)  # the demo room is 4.6 x 4.0 m
+    _, walls = _room_planes(MeshData(points=room.vertices, faces=room.faces))
+    turn = trimesh.transformations.rotation_matrix(np.radians(25.0), [0, 0, 1])[:3, :3]
+    _, turned = _room_planes(MeshData(points=room.vertices @ turn.T, faces=room.faces))  # filmed turned about z
+    assert len(walls) == len(turned) == 4
+    for wall in walls:  # the same four walls, turned with the room, as far from its centre
+        match = max(turned, key=lambda w: float(np.asarray(w.normal) @ turn @ np.asarray(wall.normal)))
+        assert np.asarray(match.normal) @ turn @ np.asarray(wall.normal) == pytest.approx(1.0, abs=1e-4)
+        assert match.offset == pytest.approx(wall.offset, abs=1e-3)
 
 
 def test_background_mesh_collider_option(recon: tuple[Path, _pipeline.PipelineResult], tmp_path: Path) -> None:

@@ -18,6 +18,7 @@ __all__ = [
     "MassProperties",
     "collider_reach",
     "cut_by_plane",
+    "inside",
     "mass_properties",
     "overlap",
     "subtract",
@@ -152,6 +153,39 @@ def area_samples(tri: np.ndarray, area: np.ndarray, count: int, rng: np.random.G
     return t[:, 0] + r[:, :1] * (t[:, 1] - t[:, 0]) + r[:, 1:] * (t[:, 2] - t[:, 0])
 
 
+# ray directions for the parity test, tried in turn for the points the previous one left undecided; irrational-
+# looking so that a ray rarely runs along an edge of a grid-aligned mesh. Fixed (trimesh's own ``contains`` draws
+# its second direction from OS entropy, so the same scene could come out two ways)
+_PARITY_DIRECTIONS = np.array([[0.4395064455, 0.617598629942, 0.652231566745],
+                               [-0.7071, 0.2179, 0.6727], [0.3149, -0.8901, 0.3293],
+                               [0.5774, 0.5773, -0.5774]])  # fmt: skip
+
+
+def inside(target, points: np.ndarray) -> np.ndarray:  # noqa: ANN001 - a watertight trimesh.Trimesh
+    """[N] bool: which ``points`` lie inside the closed mesh ``target``, by ray parity. A point is decided by the
+    first direction whose ray forwards and backwards agree (or one of them hits nothing: free space); points no
+    direction decides take the forward parity of the last one. Deterministic: the same points, the same answer."""
+    pts = np.asarray(points, np.float64).reshape(-1, 3)
+    result = np.zeros(len(pts), bool)
+    lo, hi = target.bounds
+    todo = np.flatnonzero(np.all((pts >= lo) & (pts <= hi), axis=1))
+    for k, direction in enumerate(_PARITY_DIRECTIONS):
+        if len(todo) == 0:
+            break
+        d = direction / np.linalg.norm(direction)
+        rays = np.tile(d, (len(todo), 1))
+        _, index_ray, _ = target.ray.intersects_location(np.vstack((pts[todo], pts[todo])),
+                                                         np.vstack((rays, -rays)), multiple_hits=True)  # fmt: skip
+        hits = np.bincount(index_ray, minlength=2 * len(todo)).reshape(2, -1)
+        odd = hits % 2 == 1
+        decided = (odd[0] == odd[1]) | (hits == 0).any(axis=0)
+        result[todo] = odd[0] & (hits != 0).all(axis=0)
+        if k == len(_PARITY_DIRECTIONS) - 1:
+            result[todo[~decided]] = odd[0][~decided]
+        todo = todo[~decided]
+    return result
+
+
 def collider_reach(parts: list[Mesh], mesh: Mesh, *, samples: int = 2000, seed: int = 0,
                    hulls: bool = False) -> float:  # fmt: skip
     """How far a collider reaches outside the mesh it stands for: the largest distance from a point of the
@@ -194,7 +228,7 @@ def collider_reach(parts: list[Mesh], mesh: Mesh, *, samples: int = 2000, seed: 
     watertight = target.is_watertight
     if unsure.any() and watertight:
         with np.errstate(invalid="ignore", divide="ignore"):
-            is_outside[unsure] = ~target.contains(pts[unsure])
+            is_outside[unsure] = ~inside(target, pts[unsure])
     candidates = np.flatnonzero(off & is_outside)
     if not watertight:
         return float(distance[candidates].max()) if len(candidates) else 0.0
@@ -204,7 +238,7 @@ def collider_reach(parts: list[Mesh], mesh: Mesh, *, samples: int = 2000, seed: 
     for start in range(0, len(candidates), 256):
         batch = candidates[start : start + 256]
         with np.errstate(invalid="ignore", divide="ignore"):
-            confirmed = batch[~target.contains(pts[batch])]
+            confirmed = batch[~inside(target, pts[batch])]
         if len(confirmed):
             return float(distance[confirmed].max())
     return 0.0

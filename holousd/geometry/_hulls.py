@@ -18,6 +18,7 @@ __all__ = [
     "convexity",
     "cut_above",
     "cut_axis",
+    "cut_plane",
     "cut_below",
 ]
 
@@ -96,12 +97,22 @@ def cut_above(parts: ColliderParts, height: float, *, min_points: int = 4) -> Co
 
 def cut_axis(parts: ColliderParts, axis: int, height: float, side: float, *, min_points: int = 4) -> ColliderParts:
     """Keep the side ``side * (x[axis] - height) >= 0`` of each convex part (see :func:`cut_below`)."""
+    normal = np.zeros(3)
+    normal[axis] = side
+    return cut_plane(parts, normal, side * height, min_points=min_points)
+
+
+def cut_plane(parts: ColliderParts, normal: np.ndarray, offset: float, *, min_points: int = 4) -> ColliderParts:
+    """Keep the side ``normal . x >= offset`` of each convex part (``normal`` a unit vector; see
+    :func:`cut_below`): a wall of any orientation, a tilted cut."""
     import trimesh
 
+    n = np.asarray(normal, dtype=np.float64).reshape(3)
+    n = n / np.linalg.norm(n)
     out: ColliderParts = []
     for points, faces in parts:
         pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-        signed = side * (pts[:, axis] - height)
+        signed = pts @ n - offset
         if signed.min() >= 0:
             out.append((pts, np.asarray(faces, dtype=np.int64).reshape(-1, 3)))
             continue
@@ -112,13 +123,15 @@ def cut_axis(parts: ColliderParts, axis: int, height: float, side: float, *, min
         except Exception:  # noqa: BLE001 - qhull fails on flat input: such a part is dropped
             continue
         v = np.asarray(hull.vertices)
-        a, b = v[hull.edges_unique[:, 0]], v[hull.edges_unique[:, 1]]
-        crossing = (a[:, axis] - height) * (b[:, axis] - height) < 0
-        t = (height - a[crossing, axis]) / (b[crossing, axis] - a[crossing, axis])
-        section = a[crossing] + t[:, None] * (b[crossing] - a[crossing])
-        section[:, axis] = height
-        kept = np.concatenate([v[side * (v[:, axis] - height) >= 0], section])
-        if len(kept) < min_points or np.ptp(kept[:, axis]) < 1e-6:
+        d = v @ n - offset
+        ia, ib = hull.edges_unique[:, 0], hull.edges_unique[:, 1]
+        crossing = d[ia] * d[ib] < 0
+        a, b = v[ia[crossing]], v[ib[crossing]]
+        t = d[ia[crossing]] / (d[ia[crossing]] - d[ib[crossing]])
+        section = a + t[:, None] * (b - a)
+        section -= np.outer(section @ n - offset, n)  # exactly on the plane
+        kept = np.concatenate([v[d >= 0], section])
+        if len(kept) < min_points or np.ptp(kept @ n) < 1e-6:
             continue
         try:
             out.append(convex_hull(kept))

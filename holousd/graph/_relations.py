@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from holousd._sampling import evenly_spaced
+from holousd.geometry._contact import inside as inside_mesh
 
 __all__ = ["RelationConfig", "Relations", "infer_relations", "push_out_of", "settle_offsets"]
 
@@ -293,7 +294,7 @@ def push_out_of(mesh: Mesh, solid: Mesh, *, samples: int = 400, clearance: float
     pts = pts[np.all((pts >= lo) & (pts <= hi), axis=1)]
     if len(pts) == 0:
         return np.zeros(3)
-    inside = solid_tm.contains(pts)
+    inside = inside_mesh(solid_tm, pts)
     if not inside.any():
         return np.zeros(3)
     closest, _, _ = trimesh.proximity.closest_point(solid_tm, pts[inside])

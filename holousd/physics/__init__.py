@@ -16,6 +16,7 @@ from ._colliders import (
     cut_above,
     cut_axis,
     cut_below,
+    cut_plane,
 )
 from ._energy import e_pene_mesh, e_pene_sdf, e_stable, e_touch
 from ._errors import PhysicsInputError
@@ -59,6 +60,7 @@ __all__ = [
     "convexity",
     "cut_above",
     "cut_axis",
+    "cut_plane",
     "cut_below",
     "default_device",
     "e_pene_mesh",

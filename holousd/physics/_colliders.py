@@ -30,6 +30,7 @@ from holousd.geometry._hulls import (
     cut_above,
     cut_axis,
     cut_below,
+    cut_plane,
 )
 
 from ._scene import ColliderParts
@@ -48,6 +49,7 @@ __all__ = [
     "convexity",
     "cut_above",
     "cut_axis",
+    "cut_plane",
     "cut_below",
 ]
 

@@ -62,6 +62,7 @@ from holousd.stages._physics_setup import (
     PHYSICS_LAYER,
     ObjectPhysics,
     PhysicsSetupResult,
+    Wall,
     _descendants,
     _room_planes,
     _room_slabs,
@@ -263,17 +264,14 @@ def _order(relations: Relations) -> list[str]:
 
 
 # ----------------------------------------------------------------------------------------------- passes
-def _clip(bodies: dict[str, _Body], walls: list[tuple[int, float, float]], clearance: float) -> dict[str, _Body]:
-    """Trim every mesh behind the room's walls (keep ``sign * (x[axis] - at) >= clearance``)."""
+def _clip(bodies: dict[str, _Body], walls: list[Wall], clearance: float) -> dict[str, _Body]:
+    """Trim every mesh behind the room's walls (keep ``normal . x >= offset + clearance``)."""
     out = {}
     for name, body in bodies.items():
-        for axis, sign, at in walls:
-            points = body.world()[0]
-            if not np.any(sign * (points[:, axis] - at) < clearance):
+        for wall in walls:
+            if not np.any(-wall.depth(body.world()[0]) < clearance):
                 continue
-            normal = np.zeros(3)
-            normal[axis] = sign
-            body = body.cut(normal, sign * at + clearance, "clip:wall")
+            body = body.cut(np.asarray(wall.normal, float), wall.offset + clearance, "clip:wall")
         out[name] = body
     return out
 

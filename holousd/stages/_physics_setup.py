@@ -32,6 +32,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -201,13 +202,29 @@ def _mass_properties(mesh: MeshData) -> tuple[float, np.ndarray]:
     return volume, com
 
 
-def _room_planes(mesh: MeshData, min_area: float = 0.25) -> tuple[float | None, list[tuple[int, float, float]]]:
-    """The floor height and the walls ``(axis, sign, offset)`` of a background mesh (world coordinates).
+class Wall(NamedTuple):
+    """A wall of the room: the plane ``normal . x = offset`` (world), ``normal`` a horizontal unit vector pointing
+    into the room (the room is where ``normal . x >= offset``). Any orientation about z: rooms are not filmed
+    aligned with the capture's axes."""
 
-    Faces whose normal is within ~15 degrees of +z (floor) or of an inward horizontal axis (walls) vote, by area,
-    for their plane height / offset; the area-weighted median is the plane. Planes with less than ``min_area``
-    square metres of support are dropped. A wall with ``sign`` +1 faces +axis (the room is at larger values),
-    -1 faces -axis. Without a floor: ``(None, [])``.
+    normal: tuple[float, float, float]
+    offset: float
+
+    def depth(self, points: np.ndarray) -> np.ndarray:
+        """[N] how far each point lies behind the wall (negative in front of it), metres."""
+        return self.offset - np.asarray(points, float) @ np.asarray(self.normal, float)
+
+
+def _room_planes(mesh: MeshData, min_area: float = 0.25, max_walls: int = 8) -> tuple[float | None, list[Wall]]:
+    """The floor height and the walls of a background mesh (world coordinates).
+
+    Floor: faces whose normal is within ~15 degrees of +z in the lower half vote, by area, for their height; the
+    area-weighted median is the floor. Walls: faces above the floor with a normal within ~15 degrees of the
+    horizontal are grouped by the normal's direction about z (area-weighted histogram in 1 degree bins, peaks at
+    least 30 degrees apart); each group's direction is its area-weighted mean normal, and its plane the area-
+    weighted median offset of its faces on the room's far side along that normal (the inner face of the wall,
+    not a cabinet's front facing the same way). Planes with less than ``min_area`` square metres of support are
+    dropped. Without a floor: ``(None, [])``.
     """
     tri = mesh.points[mesh.faces]  # [F, 3, 3]
     cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
@@ -215,61 +232,82 @@ def _room_planes(mesh: MeshData, min_area: float = 0.25) -> tuple[float | None, 
     normal = cross / np.maximum(2 * area, 1e-12)[:, None]
     centre = tri.mean(1)
     lo, hi = mesh.points.min(0), mesh.points.max(0)
-    mid = (lo + hi) / 2
     cos = np.cos(np.radians(15.0))
 
-    def plane(axis: int, sign: float, side: np.ndarray) -> float | None:
-        sel = (normal[:, axis] * sign > cos) & side
-        if area[sel].sum() < min_area:
-            return None
-        order = np.argsort(centre[sel, axis])
-        cum = np.cumsum(area[sel][order])
-        return float(centre[sel, axis][order][np.searchsorted(cum, cum[-1] / 2)])
+    def median(values: np.ndarray, weights: np.ndarray) -> float:
+        order = np.argsort(values)
+        cum = np.cumsum(weights[order])
+        return float(values[order][np.searchsorted(cum, cum[-1] / 2)])
 
-    floor = plane(2, 1.0, centre[:, 2] < mid[2])
-    if floor is None:
+    sel = (normal[:, 2] > cos) & (centre[:, 2] < (lo[2] + hi[2]) / 2)
+    if area[sel].sum() < min_area:
         return None, []
-    walls = []
-    for axis in (0, 1):
-        for sign in (1.0, -1.0):  # a wall at the low side faces +axis, at the high side -axis
-            side = centre[:, axis] < mid[axis] if sign > 0 else centre[:, axis] > mid[axis]
-            at = plane(axis, sign, side & (centre[:, 2] > floor + 0.05))
-            if at is not None:
-                walls.append((axis, sign, at))
+    floor = median(centre[sel, 2], area[sel])
+    upright = (np.abs(normal[:, 2]) < np.sin(np.radians(15.0))) & (centre[:, 2] > floor + 0.05)
+    azimuth = np.degrees(np.arctan2(normal[:, 1], normal[:, 0]))  # [-180, 180]
+    bins = np.floor(azimuth + 180.0).astype(int) % 360
+    votes = np.bincount(bins[upright], weights=area[upright], minlength=360)
+    window = np.arange(-7, 8)
+    smooth = np.array([votes[(k + window) % 360].sum() for k in range(360)])  # area within 7 degrees
+    walls: list[Wall] = []
+    taken = np.zeros(360, bool)
+    for _ in range(max_walls):
+        free = np.where(taken, -1.0, smooth)
+        peak = int(np.argmax(free))
+        if free[peak] < min_area:
+            break
+        taken[(peak + np.arange(-30, 31)) % 360] = True
+        direction = np.radians(peak + 0.5 - 180.0)
+        guess = np.array([np.cos(direction), np.sin(direction), 0.0])
+        group = upright & (normal @ guess > cos)
+        n = (normal[group] * area[group, None]).sum(0)
+        n[2] = 0.0
+        n /= np.linalg.norm(n)
+        d = centre @ n
+        span = mesh.points @ n
+        far = group & (d < (span.min() + span.max()) / 2)  # the wall facing +n bounds the room at low n . x
+        if area[far].sum() < min_area:
+            continue
+        walls.append(Wall(normal=(float(n[0]), float(n[1]), 0.0), offset=median(d[far], area[far])))
+    walls.sort(key=lambda w: (round(np.degrees(np.arctan2(w.normal[1], w.normal[0])), 3), w.offset))
     return floor, walls
 
 
+def _box(extents: np.ndarray, rotation: np.ndarray, centre: np.ndarray) -> MeshData:
+    import trimesh
+
+    transform = np.eye(4)
+    transform[:3, :3], transform[:3, 3] = rotation, centre
+    t = trimesh.creation.box(extents=extents, transform=transform)
+    return MeshData(points=np.asarray(t.vertices), faces=np.asarray(t.faces))
+
+
 def _room_slabs(mesh: MeshData, thickness: float, min_area: float = 0.25) -> list[MeshData]:
-    """Axis-aligned slabs behind the background's floor and walls (:func:`_room_planes`; floor first).
+    """Slabs behind the background's floor and walls (:func:`_room_planes`; floor first): the floor slab
+    axis-aligned under the room, each wall slab turned with its wall and spanning the room along it.
 
     Returns [] without a floor.
     """
-    import trimesh
-
     floor, walls = _room_planes(mesh, min_area)
     if floor is None:
         return []
     lo, hi = mesh.points.min(0), mesh.points.max(0)
     pad = thickness
-
-    def box(a: np.ndarray, b: np.ndarray) -> MeshData:
-        t = trimesh.creation.box(bounds=np.stack([a, b]))
-        return MeshData(points=np.asarray(t.vertices), faces=np.asarray(t.faces))
-
-    slabs = [box(np.array([lo[0] - pad, lo[1] - pad, floor - thickness]),
-                 np.array([hi[0] + pad, hi[1] + pad, floor]))]  # fmt: skip
-    for axis, sign, at in walls:
-        a = np.array([lo[0] - pad, lo[1] - pad, floor - thickness])
-        b = np.array([hi[0] + pad, hi[1] + pad, hi[2]])
-        if sign > 0:
-            a[axis], b[axis] = at - thickness, at
-        else:
-            a[axis], b[axis] = at, at + thickness
-        slabs.append(box(a, b))
+    slabs = [_box(np.array([hi[0] - lo[0] + 2 * pad, hi[1] - lo[1] + 2 * pad, thickness]), np.eye(3),
+                  np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, floor - thickness / 2]))]  # fmt: skip
+    bottom, top = floor - thickness, float(hi[2])
+    for wall in walls:
+        n = np.asarray(wall.normal, float)
+        t = np.array([-n[1], n[0], 0.0])  # along the wall; (n, t, z) is right-handed
+        along = mesh.points @ t
+        extents = np.array([thickness, np.ptp(along) + 2 * pad, top - bottom])
+        centre = (n * (wall.offset - thickness / 2) + t * (along.min() + along.max()) / 2
+                  + np.array([0.0, 0.0, (bottom + top) / 2]))  # fmt: skip
+        slabs.append(_box(extents, np.stack([n, t, [0.0, 0.0, 1.0]], axis=1), centre))
     return slabs
 
 
-def _clip_to_walls(mesh: MeshData, pose: Pose, walls: list[tuple[int, float, float]],
+def _clip_to_walls(mesh: MeshData, pose: Pose, walls: list[Wall],
                    clearance: float) -> tuple[MeshData, float]:  # fmt: skip
     """``mesh`` (object coordinates) with whatever lies behind a wall trimmed away, and the volume removed (m^3).
 
@@ -280,7 +318,7 @@ def _clip_to_walls(mesh: MeshData, pose: Pose, walls: list[tuple[int, float, flo
     import manifold3d
 
     world = pose.apply(mesh.points)
-    crossing = [(a, s, at) for a, s, at in walls if np.any(s * (world[:, a] - at) < clearance)]
+    crossing = [w for w in walls if np.any(-w.depth(world) < clearance)]
     if not crossing:
         return mesh, 0.0
     solid = manifold3d.Manifold(manifold3d.Mesh(vert_properties=np.asarray(mesh.points, np.float32),
@@ -289,11 +327,10 @@ def _clip_to_walls(mesh: MeshData, pose: Pose, walls: list[tuple[int, float, flo
         return mesh, 0.0
     rotation = pose.matrix()[:3, :3]
     before = solid.volume()
-    for axis, sign, at in crossing:  # keep sign * (x_world[axis] - at) >= clearance, in object coordinates
-        n_world = np.zeros(3)
-        n_world[axis] = sign
+    for wall in crossing:  # keep normal . x_world >= offset + clearance, in object coordinates
+        n_world = np.asarray(wall.normal, float)
         n_obj = rotation.T @ n_world
-        offset = sign * at + clearance - float(n_world @ np.asarray(pose.translation, float))
+        offset = wall.offset + clearance - float(n_world @ np.asarray(pose.translation, float))
         solid = solid.trim_by_plane(tuple(float(v) for v in n_obj), float(offset))
     if solid.is_empty() or solid.volume() < 0.2 * before:  # the object is not against the wall: keep it
         return mesh, 0.0
@@ -634,7 +671,7 @@ def setup_physics(scene: SceneGraph, config: PhysicsSetupConfig | None = None,
     except SceneError:
         background = None
     clipped: dict[str, float] = {}
-    walls: list[tuple[int, float, float]] = []
+    walls: list[Wall] = []
     if config.clip_to_walls and background is not None and len(background.faces):
         bg_pose = scene.get_pose(BACKGROUND)
         _, walls = _room_planes(MeshData(points=bg_pose.apply(background.points), faces=background.faces))
@@ -665,15 +702,16 @@ def setup_physics(scene: SceneGraph, config: PhysicsSetupConfig | None = None,
     base_cut: dict[str, float] = {}
     top_cut: dict[str, float] = {}
     if config.flat_base:
-        from holousd.physics import cut_above, cut_axis, cut_below
+        from holousd.physics import cut_above, cut_below, cut_plane
 
         parents = set(relations.support.values())
         for name, (kind, parts, ratio) in colliders.items():
             pose = scene.get_pose(name)
             world_parts = [(pose.apply(p.points), p.faces) for p in parts]
-            for axis, sign, at in walls:  # CoACD's voxel pre-processing grows parts past a wall the mesh met
-                if any(np.any(sign * (w[0][:, axis] - at) < config.clearance) for w in world_parts):
-                    world_parts = cut_axis(world_parts, axis, at + sign * config.clearance, sign) or world_parts
+            for wall in walls:  # CoACD's voxel pre-processing grows parts past a wall the mesh met
+                if any(np.any(-wall.depth(w[0]) < config.clearance) for w in world_parts):
+                    world_parts = (cut_plane(world_parts, np.asarray(wall.normal), wall.offset + config.clearance)
+                                   or world_parts)  # fmt: skip
                     base_cut.setdefault(name, 0.0)
             z = np.concatenate([w[0][:, 2] for w in world_parts])
             fraction, lo, hi = config.base_depth
