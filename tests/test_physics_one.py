@@ -163,6 +163,24 @@ def test_a_concave_object_gets_a_decomposition_of_its_mesh(tmp_path: Path) -> No
     assert rec.collider == "decomposition" and rec.parts >= 2 and rec.collider_reach_m < 0.03
 
 
+def test_a_lumpy_convex_object_becomes_its_hull(tmp_path: Path) -> None:
+    book = _union(_box((0, 0, 0), (0.2, 0.15, 0.03)), _box((0.02, 0.02, 0.03), (0.05, 0.13, 0.037)),
+                  _box((0.15, 0.02, 0.03), (0.18, 0.13, 0.037)))  # fmt: skip  # two 7 mm lumps on its cover
+    scene = _scene(tmp_path, {"book": book})
+    (rec,) = setup_physics(scene, PhysicsSetupConfig()).objects
+    assert rec.collider == "hull" and rec.parts == 1 and rec.collider_reach_m == 0.0
+    assert any(e.startswith("convexify:hull:0.7cm") for e in rec.edits), rec.edits
+    mesh = trimesh.Trimesh(*_world_mesh(scene, "book"))
+    assert mesh.is_watertight and mesh.volume == pytest.approx(mesh.convex_hull.volume, rel=1e-6)  # lumps filled
+    assert mesh.volume > trimesh.Trimesh(*book).volume + 0.9 * 2 * 0.03 * 0.02 * 0.007  # between the lumps
+    collider = scene.get_collider("book").parts[0]
+    assert trimesh.Trimesh(collider.points, collider.faces).volume == pytest.approx(mesh.volume, rel=1e-6)
+    deep = _union(_box((0, 0, 0), (0.2, 0.15, 0.03)), _box((0.0, 0.0, 0.03), (0.04, 0.15, 0.05)),
+                  _box((0.16, 0.0, 0.03), (0.2, 0.15, 0.05)))  # fmt: skip  # a 2 cm trough: no hull fills that
+    (rec,) = setup_physics(_scene(tmp_path / "deep", {"deep": deep}), PhysicsSetupConfig()).objects
+    assert rec.collider == "decomposition" and not any(e.startswith("convexify:hull") for e in rec.edits)
+
+
 # ----------------------------------------------------------------------------------------------- negative controls
 def _verdicts(scene: SceneGraph) -> dict[str, tuple[bool, bool]]:
     from holousd.physics import stability
@@ -414,3 +432,18 @@ def test_a_room_turned_about_z_keeps_its_walls(tmp_path: Path, monkeypatch: pyte
     assert "clip:wall" in rec.edits and rec.penetration_m < 1e-4 and rec.collider_reach_m < 0.005
     behind = max(float(w.depth(_world(scene, "crate")).max()) for w in walls)
     assert behind == pytest.approx(-0.001, abs=1e-5)  # cut flat 1 mm in front of the wall, along its normal
+
+
+def test_decomposition_keeps_its_hulls_out_of_a_neighbour() -> None:
+    from holousd.geometry import plane_decomposition
+
+    ell = _union(_box((0, 0, 0), (0.4, 0.1, 0.02)), _box((0, 0, 0), (0.02, 0.1, 0.4)))  # a board and a side
+    cube = _box((0.06, 0.0, 0.06), (0.16, 0.1, 0.16))  # stands in the corner, inside the ell's hull
+    loose = plane_decomposition(ell, tolerance=0.5, max_parts=8)  # concave by 28 cm: within this tolerance
+    assert len(loose.parts) == 1 and overlap(loose.parts[0], cube).volume_m3 > 5e-4
+    kept = plane_decomposition(ell, tolerance=0.5, max_parts=8, keep_out=[cube])
+    assert len(kept.parts) >= 2 and kept.intrusion_m3 <= 1e-8
+    assert sum(overlap(p, cube).volume_m3 for p in kept.parts) <= 1e-8
+    inside_board = _box((0.3, 0.0, 0.005), (0.35, 0.1, 0.015))  # overlaps the ell's own mesh: not the hull's doing
+    same = plane_decomposition(ell, tolerance=0.5, max_parts=8, keep_out=[inside_board])
+    assert len(same.parts) == 1 and same.intrusion_m3 == 0.0

@@ -39,6 +39,9 @@ class Decomposition:
     reaches outside the mesh."""
     excess_m3: float
     """Volume of the union of hulls not in the mesh, m^3."""
+    intrusion_m3: float = 0.0
+    """Volume of the hulls inside the keep-out solids beyond the mesh's own overlap with them, m^3 (0 without
+    keep-outs)."""
 
 
 @dataclass
@@ -50,6 +53,21 @@ class _Piece:
     vertices: np.ndarray
     concavity: float
     deepest: np.ndarray
+    intrusion: float = 0.0  # volume of the hull inside the keep-out solids, m^3
+
+
+def _intrusion(piece, hull, keep_out: list) -> float:  # noqa: ANN001
+    """Volume of ``hull`` inside the keep-out solids ``(solid, lo [3], hi [3])`` beyond what of ``piece`` itself
+    lies there (an overlap of the meshes is not the hull's doing, and no cut removes it), m^3."""
+    box = np.asarray(hull.bounding_box(), float).reshape(2, 3)
+    total = 0.0
+    for solid, lo, hi in keep_out:
+        if np.any(hi < box[0]) or np.any(lo > box[1]):
+            continue
+        inside = float((hull ^ solid).volume())
+        if inside > 0.0:
+            total += max(0.0, inside - float((piece ^ solid).volume()))
+    return total
 
 
 def _surface_samples(points: np.ndarray, faces: np.ndarray, extra: int, rng: np.random.Generator) -> np.ndarray:
@@ -64,10 +82,11 @@ def _surface_samples(points: np.ndarray, faces: np.ndarray, extra: int, rng: np.
     return np.concatenate(out)
 
 
-def _piece(solid, tolerance: float) -> _Piece:  # noqa: ANN001
+def _piece(solid, tolerance: float, keep_out: list | None = None) -> _Piece:  # noqa: ANN001
     """A piece and how far its hull stands off its surface: the largest distance from samples of the hull's
     surface to the piece's surface (first to the nearest of its vertices and face centroids; exactly, to its
-    triangles, for the samples that puts further than half ``tolerance``)."""
+    triangles, for the samples that puts further than half ``tolerance``); and how much of its hull lies inside
+    the ``keep_out`` solids."""
     import trimesh
     from scipy.spatial import cKDTree
 
@@ -86,7 +105,8 @@ def _piece(solid, tolerance: float) -> _Piece:  # noqa: ANN001
         distance[far] = exact
     k = int(np.argmax(distance))
     return _Piece(solid=solid, volume=float(solid.volume()), hull=hull, hull_volume=float(hull.volume()),
-                  vertices=points, concavity=float(distance[k]), deepest=probes[k])  # fmt: skip
+                  vertices=points, concavity=float(distance[k]), deepest=probes[k],
+                  intrusion=_intrusion(solid, hull, keep_out) if keep_out else 0.0)  # fmt: skip
 
 
 def _components(solid, min_volume: float) -> list:  # noqa: ANN001
@@ -139,7 +159,8 @@ def _best_split(piece: _Piece, offsets: int, min_volume: float) -> list | None:
 
 
 def plane_decomposition(mesh: Mesh, *, tolerance: float = 0.003, max_parts: int = 32, offsets: int = 9,
-                        cuts: list[tuple[np.ndarray, float]] | None = None) -> Decomposition | None:  # fmt: skip
+                        cuts: list[tuple[np.ndarray, float]] | None = None, keep_out: list[Mesh] | None = None,
+                        max_intrusion: float = 1e-8) -> Decomposition | None:  # fmt: skip
     """Cut a closed mesh into convex pieces by planes (see the module docstring).
 
     Args:
@@ -147,10 +168,16 @@ def plane_decomposition(mesh: Mesh, *, tolerance: float = 0.003, max_parts: int 
         tolerance: Stop cutting a piece when its surface lies within this distance of its hull, metres.
         max_parts: Most pieces.
         offsets: Evenly spaced plane offsets tried along each axis (plus a few where the vertices gather and one
-            through the hull point farthest from the piece).
+            through the hull point farthest from the piece). Fewer are faster but not safer: on 17 fitted objects
+            whose hull reaches over 1 cm outside them (fast preset, 32 parts) 3 offsets reached 33.5 cm in sum in
+            37 s against 9's 41.0 cm in 65 s, yet the demo's table top then held 3 fewer of its objects.
         cuts: Planes ``(normal [3], offset)`` every piece is cut by first, half a millimetre along ``normal``
             from ``normal . x = offset``: where something rests on the mesh, its flat support surface (normal
             pointing out of it), so that no hull bridges more than that above it.
+        keep_out: Closed meshes (the mesh's frame) no piece's hull may enter: the neighbours and the support
+            beside and under the object. A piece whose hull holds more than ``max_intrusion`` m^3 of them is cut
+            before any other, whatever its concavity (a shelf's side and upper board as one piece: their hull
+            fills the compartment where a bowl stands).
 
     Returns:
         The pieces' hulls and how far they reach outside the mesh; None when the mesh is not a closed manifold.
@@ -168,18 +195,25 @@ def plane_decomposition(mesh: Mesh, *, tolerance: float = 0.003, max_parts: int 
             above, below = piece.split_by_plane(tuple(float(v) for v in normal), float(offset) + 5e-4)
             split += _components(above, min_volume) + _components(below, min_volume)
         solids = split or solids
-    pieces = [_piece(p, tolerance) for p in solids]
+    blocked = []
+    for other in keep_out or []:
+        found = _solid(other)
+        if found is not None:
+            box = np.asarray(found.bounding_box(), float).reshape(2, 3)
+            blocked.append((found, box[0], box[1]))
+    pieces = [_piece(p, tolerance, blocked) for p in solids]
     frozen: list[_Piece] = []  # pieces no plane cut improves
     while len(pieces) + len(frozen) < max_parts:
-        worst = max(range(len(pieces)), key=lambda i: pieces[i].concavity, default=None)
-        if worst is None or pieces[worst].concavity <= tolerance:
+        worst = max(range(len(pieces)), key=lambda i: (pieces[i].intrusion > max_intrusion, pieces[i].concavity),
+                    default=None)  # fmt: skip
+        if worst is None or (pieces[worst].concavity <= tolerance and pieces[worst].intrusion <= max_intrusion):
             break
         piece = pieces.pop(worst)
         split = _best_split(piece, offsets, min_volume)
         if split is None or len(pieces) + len(frozen) + len(split) > max_parts:
             frozen.append(piece)
             continue
-        pieces.extend(_piece(p, tolerance) for p in split)
+        pieces.extend(_piece(p, tolerance, blocked) for p in split)
     pieces += frozen
     total = float(solid.volume())
     union = pieces[0].hull
@@ -187,7 +221,8 @@ def plane_decomposition(mesh: Mesh, *, tolerance: float = 0.003, max_parts: int 
         union = union + p.hull
     return Decomposition(parts=[_mesh(p.hull) for p in pieces],
                          concavity_m=max((p.concavity for p in pieces), default=0.0),
-                         excess_m3=max(0.0, float(union.volume()) - total))  # fmt: skip
+                         excess_m3=max(0.0, float(union.volume()) - total),
+                         intrusion_m3=sum(p.intrusion for p in pieces))  # fmt: skip
 
 
 def convexify(mesh: Mesh, decomposition: Decomposition) -> Mesh | None:

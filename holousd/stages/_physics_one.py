@@ -22,18 +22,23 @@ objects:
 4. ``separate``: neighbours whose meshes still overlap are cut apart at the middle of the overlap, across its
    thinnest axis, as two real objects meet at one face.
 5. ``shape``: the convex hull of the mesh is the collider when it reaches at most ``hull_tolerance`` outside
-   it; else a decomposition of that mesh (:func:`holousd.geometry.plane_decomposition`: plane cuts until every
-   piece lies within ``hull_tolerance`` of its hull, at most ``max_parts``). When the decomposition reaches at
-   most ``convexify`` outside the mesh, the mesh and SDF become the union of its parts (the rendered surface
-   fills its concavities by at most that much) and the collider is exactly the rendered solid; else the reach
-   is what it is, and is recorded.
+   it (at most ``convexify``: the mesh and SDF then become the hull, a lumpy book or ball fitted on coarse
+   cells) and enters none of the objects around it; else a decomposition of that mesh
+   (:func:`holousd.geometry.plane_decomposition`: plane cuts until every piece lies within ``hull_tolerance`` of
+   its hull and no piece's hull enters the objects around it (their colliders once shaped, objects in name
+   order), at most ``max_parts``). When the decomposition reaches at most ``convexify`` outside the mesh and its
+   union enters nothing around it, the mesh and SDF become the union of its parts (the rendered surface fills
+   its concavities by at most that much) and the collider is exactly the rendered solid; else the reach is what
+   it is, and is recorded. A support is shaped before its children are set on it, without keep-outs (its
+   children have not been set down yet).
 6. ``mass``: mass, centre of mass and inertia (principal moments and axes) of the final mesh at ``density``.
 
 Each object records (``HoloGeometryAPI``): its shift from the pose the fit gave (``holo:geometry:fitShift``), its
 collider's reach outside the mesh, its deepest penetration into another node, its volume and the edits made.
 No collider-only edit is made: where the rendered geometry cannot stand, the stability verdict says so.
 
-The room's static collider is a set of axis-aligned floor and wall slabs fitted to the background mesh's planes
+The room's static collider is a set of floor and wall slabs fitted to the background mesh's planes (walls of any
+orientation about z)
 (``background_collider='slabs'``; its triangle mesh with ``'mesh'`` or when no floor plane is found): Newton's
 triangle-mesh contact launched furniture resting on the fitted room shell.
 """
@@ -130,8 +135,8 @@ class PhysicsSetupConfig:
     much (about what the object's own depth and masks allow), and the collider is then exactly the rendered
     solid. 0: never."""
     background_collider: str = "slabs"
-    """'slabs': axis-aligned floor and wall slabs fitted to the background mesh (falls back to 'mesh' when no
-    floor plane is found); 'mesh': the background's triangle mesh (approximation none)."""
+    """'slabs': floor and wall slabs (walls of any orientation about z) fitted to the background mesh (falls
+    back to 'mesh' when no floor plane is found); 'mesh': the background's triangle mesh (approximation none)."""
     slab_thickness: float = 0.2
     """Thickness of each background slab behind its plane, metres."""
     relations: RelationConfig = field(default_factory=RelationConfig)
@@ -321,7 +326,7 @@ def _rest(bodies: dict[str, _Body], relations: Relations, room: tuple[np.ndarray
                 flattened.add(parent)
                 out[parent] = _flatten_top(out[parent], [out[c] for c in relations.children(parent) if c in out],
                                            config)  # fmt: skip
-            out[parent] = _shaped(out[parent], config)
+            out[parent] = _shaped(out[parent], config)  # its children are set onto its collider next
             support_parts = [(out[parent].pose.apply(p.points), p.faces) for p in out[parent].collider[1]]
         body = out[name]
         surface = room if parent == BACKGROUND else (out[parent].world() if parent in out else None)
@@ -418,16 +423,16 @@ def _separate(bodies: dict[str, _Body], relations: Relations, config: PhysicsSet
     return out
 
 
-def _decompose(mesh: MeshData, config: PhysicsSetupConfig,
-               planes: tuple = ()) -> list[tuple[np.ndarray, np.ndarray]]:  # fmt: skip
+def _decompose(mesh: MeshData, config: PhysicsSetupConfig, planes: tuple = (),
+               keep_out: tuple = ()) -> list[tuple[np.ndarray, np.ndarray]]:  # fmt: skip
     """Convex decomposition of ``mesh``: plane cuts (``decomposition='planes'``, first along ``planes``) or
     CoACD."""
     from holousd.physics import DecompositionConfig, convex_decomposition
 
     if config.decomposition == "planes":
         found = plane_decomposition((mesh.points, mesh.faces), tolerance=config.hull_tolerance,
-                                    max_parts=config.max_parts,
-                                    cuts=[(np.asarray(n), o) for n, o in planes])  # fmt: skip
+                                    max_parts=config.max_parts, cuts=[(np.asarray(n), o) for n, o in planes],
+                                    keep_out=list(keep_out))  # fmt: skip
         return found.parts if found is not None else []
     cfg = DecompositionConfig(max_parts=config.max_parts, seed=config.seed)
     if config.decomposition_iterations is not None:  # quick settings: coarse concavity metric, shallow search
@@ -437,30 +442,46 @@ def _decompose(mesh: MeshData, config: PhysicsSetupConfig,
     return convex_decomposition(mesh.points, mesh.faces, cfg)
 
 
-def _collider(mesh: MeshData, config: PhysicsSetupConfig, planes: tuple = ()) -> tuple[str, list[MeshData], float]:
-    """The hull of the mesh when it stays within ``hull_tolerance`` of it, else a decomposition of the mesh;
-    with the chosen collider's reach outside the mesh, metres."""
+def _intrusion(part: tuple[np.ndarray, np.ndarray], mesh: MeshData, keep_out: tuple) -> float:
+    """Volume of ``part`` inside the ``keep_out`` meshes beyond the mesh's own overlap with them, m^3."""
+    own = (mesh.points, mesh.faces)
+    return sum(max(0.0, overlap(part, k).volume_m3 - overlap(own, k).volume_m3) for k in keep_out)
+
+
+def _collider(mesh: MeshData, config: PhysicsSetupConfig, planes: tuple = (),
+              keep_out: tuple = ()) -> tuple[str, list[MeshData], float]:  # fmt: skip
+    """The hull of the mesh when it stays within ``hull_tolerance`` of it (or within ``convexify``: the mesh then
+    becomes its hull) and enters none of the ``keep_out`` meshes (its neighbours and support, the mesh's frame),
+    else a decomposition of the mesh; with the chosen collider's reach outside the mesh, metres."""
     from holousd.physics import convex_hull
 
     hull = convex_hull(mesh.points, mesh.faces)
     reach = collider_reach([hull], (mesh.points, mesh.faces), seed=config.seed)
-    if reach <= config.hull_tolerance:
+    if reach <= max(config.hull_tolerance, config.convexify) and _intrusion(hull, mesh, keep_out) <= 1e-8:
         return "hull", [MeshData(points=hull[0], faces=hull[1])], reach
-    parts = _decompose(mesh, config, planes)
+    parts = _decompose(mesh, config, planes, keep_out)
     part_reach = collider_reach(parts, (mesh.points, mesh.faces), seed=config.seed) if parts else np.inf
     if part_reach >= reach:  # the decomposition does not follow the mesh better: the simpler collider
         return "hull", [MeshData(points=hull[0], faces=hull[1])], reach
     return "decomposition", [MeshData(points=p, faces=f) for p, f in parts], part_reach
 
 
-def _shaped(body: _Body, config: PhysicsSetupConfig) -> _Body:
-    """The body with its collider derived from its mesh (``body.collider``); when that is a decomposition
-    reaching at most ``convexify`` outside the mesh, the mesh and SDF become the union of its parts (the
-    collider then is the rendered solid). A body already shaped comes back as it is."""
+def _shaped(body: _Body, config: PhysicsSetupConfig,
+            keep_out: list[tuple[np.ndarray, np.ndarray]] | None = None) -> _Body:  # fmt: skip
+    """The body with its collider derived from its mesh (``body.collider``); when that is a hull or a
+    decomposition reaching at most ``convexify`` outside the mesh, the mesh and SDF become the hull or the union of
+    its parts (the collider then is the rendered solid). No part enters the ``keep_out`` meshes (world: what
+    stands beside and under it) where a decomposition can avoid it. A body already shaped comes back as it is."""
     if body.collider is not None:
         return body
     body = replace(body, mesh=_drop_degenerate(body.mesh))  # the collider from the mesh as it will be authored
-    kind, parts, reach = _collider(body.mesh, config, body.planes)
+    inverse = np.linalg.inv(body.pose.matrix())
+    local = tuple((p @ inverse[:3, :3].T + inverse[:3, 3], f) for p, f in keep_out or [])
+    kind, parts, reach = _collider(body.mesh, config, body.planes, local)
+    if kind == "hull" and config.hull_tolerance < reach <= config.convexify:  # a lumpy convex object (a book,
+        hull = parts[0]  # a ball fitted on coarse cells): its hull, one part, is both collider and mesh
+        grown = body.plus_convex([(hull.points, hull.faces)], hull, f"convexify:hull:{100 * reach:.1f}cm")
+        return replace(grown, collider=(kind, parts, 0.0))
     if kind != "decomposition" or not 0.0 < reach <= config.convexify:
         return replace(body, collider=(kind, parts, reach))
     united = convexify((body.mesh.points, body.mesh.faces),
@@ -468,10 +489,31 @@ def _shaped(body: _Body, config: PhysicsSetupConfig) -> _Body:
     if united is None:
         return replace(body, collider=(kind, parts, reach))
     united = without_zero_area_faces(united)  # a boolean union leaves slivers; the splat binding rejects them
+    if _intrusion(united, body.mesh, local) > 1e-8:  # the parts could not all keep out: the mesh stays as seen
+        return replace(body, collider=(kind, parts, reach))
     grown = body.plus_convex([(p.points, p.faces) for p in parts], MeshData(points=united[0], faces=united[1]),
                              f"convexify:{100 * reach:.1f}cm")  # fmt: skip
     return replace(grown, collider=(kind, parts, collider_reach([(p.points, p.faces) for p in parts], united,
                                                                 seed=config.seed)))  # fmt: skip
+
+
+def _around(name: str, bodies: dict[str, _Body], margin: float = 0.01) -> list[tuple[np.ndarray, np.ndarray]]:
+    """World meshes of what a body's collider must keep out of: every other body whose bounding box comes
+    within ``margin`` of its own, as its collider's parts once it has one (they are what a simulator meets),
+    else its mesh."""
+    own = bodies[name].world()[0]
+    lo, hi = own.min(0) - margin, own.max(0) + margin
+    out = []
+    for other in sorted(bodies):
+        body = bodies[other]
+        points = body.world()[0]
+        if other == name or np.any(points.min(0) > hi) or np.any(points.max(0) < lo):
+            continue
+        if body.collider is None:
+            out.append(body.world())
+        else:
+            out += [(body.pose.apply(p.points), p.faces) for p in body.collider[1]]
+    return out
 
 
 def _drop_degenerate(mesh: MeshData) -> MeshData:
@@ -527,7 +569,8 @@ def setup_physics(scene: SceneGraph, config: PhysicsSetupConfig | None = None,
         bodies = _rest(bodies, relations, room_surface, config)
     if config.separate:
         bodies = _separate(bodies, relations, config)
-    bodies = {n: _shaped(b, config) for n, b in bodies.items()}
+    for name in sorted(bodies):  # one by one: each keeps out of what was shaped before it
+        bodies[name] = _shaped(bodies[name], config, _around(name, bodies))
 
     scene.push_layer(Path(out_dir) / PHYSICS_LAYER, provenance=config.provenance, replace=True)
     material = dict(static_friction=config.friction, dynamic_friction=config.friction,

@@ -21,8 +21,8 @@ What the earlier set-up writes over the fitted geometry, per object:
   walls, then every object's collider base is set onto its parent's collider (children follow their parent);
 - a rigid body with mass = density x mesh volume (centre of mass from the mesh), friction 0.5.
 
-The background's static collider is a set of axis-aligned floor and wall slabs fitted to its mesh
-(``background_collider='slabs'``; its triangle mesh with approximation ``none`` when no floor plane is found or
+The background's static collider is a set of floor and wall slabs (walls of any orientation about z) fitted to
+its mesh (``background_collider='slabs'``; its triangle mesh with approximation ``none`` when no floor plane is found or
 with ``'mesh'``). This is the support-graph part of s2_physics; generative completion and the candidate tree
 search come later and will replace the geometric guesses above where they do better.
 """
@@ -94,9 +94,10 @@ class PhysicsSetupConfig:
     """CoACD tree-search iterations with a coarse (500-sample) concavity metric: about 5x faster than CoACD's
     defaults on fitted meshes. None runs :func:`holousd.physics.convex_decomposition` with its full settings."""
     background_collider: str = "slabs"
-    """'slabs': axis-aligned floor and wall slabs fitted to the background mesh (falls back to 'mesh' when no
-    floor plane is found); 'mesh': the background's triangle mesh (approximation none). Newton's triangle-mesh
-    contact launched furniture resting on the fitted room shell (a cabinet flew 11 m), hence slabs by default."""
+    """'slabs': floor and wall slabs (walls of any orientation about z) fitted to the background mesh (falls
+    back to 'mesh' when no floor plane is found); 'mesh': the background's triangle mesh (approximation none).
+    Newton's triangle-mesh contact launched furniture resting on the fitted room shell (a cabinet flew 11 m),
+    hence slabs by default."""
     slab_thickness: float = 0.2
     """Thickness of each background slab behind its plane, metres."""
     settle: bool = True
