@@ -14,13 +14,14 @@ PACKAGE = Path(__file__).resolve().parents[1] / "holousd"
 
 # domain -> domains it must not import (stages compose domains; domains never import stages or the CLI)
 FORBIDDEN = {
-    "usd": ("stages", "cli", "physics", "render", "synth", "io", "eval", "graph", "priors"),
-    "geometry": ("stages", "cli", "physics", "render", "synth", "eval"),
-    "render": ("stages", "cli", "synth"),
-    "physics": ("stages", "cli", "render", "synth"),
-    "io": ("stages", "cli", "physics", "render"),
-    "graph": ("stages", "cli", "physics", "render", "synth", "io", "eval"),
-    "eval": ("cli",),  # the benchmark harness composes stages
+    "usd": ("stages", "cli", "physics", "render", "synth", "io", "eval", "graph", "priors", "batch"),
+    "geometry": ("stages", "cli", "physics", "render", "synth", "eval", "batch"),
+    "render": ("stages", "cli", "synth", "batch"),
+    "physics": ("stages", "cli", "render", "synth", "batch"),
+    "io": ("stages", "cli", "physics", "render", "batch"),
+    "graph": ("stages", "cli", "physics", "render", "synth", "io", "eval", "batch"),
+    "eval": ("cli",),  # the benchmark harness composes stages (and runs them on batch's engine)
+    "batch": ("cli",),
 }
 
 
@@ -91,5 +92,14 @@ def test_render_kernels_never_import_eval() -> None:
     which offers the appearance benchmark, reaches into eval."""
     pattern = re.compile(r"^\s*(?:from|import)\s+holousd\.eval\b", re.M)
     sources = [p for p in (PACKAGE / "render").glob("*.py") if p.name != "_cli.py"]
+    offenders = [p.name for p in sources if pattern.search(p.read_text())]
+    assert not offenders, offenders
+
+
+def test_stages_never_import_what_sits_above_them() -> None:
+    """eval, view and batch sit above the stages (ARCHITECTURE.md §3); only the stages' command-line glue, which
+    offers ``eval`` and ``bench``, reaches up."""
+    pattern = re.compile(r"^\s*(?:from|import)\s+holousd\.(eval|batch|view)\b", re.M)
+    sources = [p for p in (PACKAGE / "stages").glob("*.py") if not p.name.endswith("_cli.py")]
     offenders = [p.name for p in sources if pattern.search(p.read_text())]
     assert not offenders, offenders

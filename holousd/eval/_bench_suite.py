@@ -55,6 +55,12 @@ class BenchSuiteConfig:
     """Surface samples of the geometry metrics."""
     command: str | None = None
     """Command line recorded in ``bench.json`` (None: rebuilt from these settings)."""
+    ray: str | None = None
+    """Run the (scene, preset) pairs as Ray tasks on this cluster ('local', 'auto' or 'HOST:PORT'); None: one after
+    another in this process. The figures are the same either way (same seeds; each task's torch threads are
+    ``threads``, 1 when unset)."""
+    num_cpus: float = 1.0
+    """Cores each Ray task declares."""
 
 
 @dataclass(kw_only=True)
@@ -262,7 +268,32 @@ def _command_line(config: BenchSuiteConfig) -> str:
     parts += [f"--frames {config.frames}", f"--resolution {config.width}x{config.height}", f"--seed {config.seed}"]
     if config.threads:
         parts.append(f"--threads {config.threads}")
+    if config.ray:
+        parts.append(f"--ray {config.ray}")
     return " ".join(parts)
+
+
+def bench_run(data: str, out: str, suite: str, name: str, preset_name: str, seed: int, threads: int | None,
+              samples: int, quiet: bool) -> dict[str, Any]:  # fmt: skip
+    """One (scene, preset) of the benchmark: reconstruct (resuming) and evaluate; the entry of ``bench.json``."""
+    from holousd.eval._scene_eval import EvalConfig, evaluate_scene
+    from holousd.stages._pipeline import preset, reconstruct
+
+    def log(line: str) -> None:
+        if not quiet:
+            print(line, file=sys.stderr, flush=True)
+
+    if threads is not None and quiet:  # a worker process of its own: the whole task on these threads
+        import torch
+
+        torch.set_num_threads(threads)
+    scene = Path(data) / name
+    result = reconstruct(scene, Path(out), preset(preset_name, seed=seed, progress=False, threads=threads),
+                         resume=True, log=log if not quiet else (lambda _: None))  # fmt: skip
+    wall = sum(stage.wall_s for stage in result.stages)  # as recorded, also for stages resumed
+    evaluation = evaluate_scene(result.scene_file, scene, EvalConfig(samples=samples, log=log))
+    return {"suite": suite, "scene": name, "preset": preset_name, "wall_s": wall,
+            "peak_mem_mb": result.peak_mem_mb, "eval": evaluation.to_dict()}  # fmt: skip
 
 
 def run_bench(out: str | os.PathLike[str], config: BenchSuiteConfig | None = None) -> BenchSuiteResult:
@@ -274,8 +305,6 @@ def run_bench(out: str | os.PathLike[str], config: BenchSuiteConfig | None = Non
             only evaluated again.
         config: Settings.
     """
-    from holousd.eval._scene_eval import EvalConfig, evaluate_scene
-    from holousd.stages._pipeline import preset, reconstruct
     from holousd.synth import SynthConfig, generate_suite, scene_names
 
     config = config or BenchSuiteConfig()
@@ -295,20 +324,46 @@ def run_bench(out: str | os.PathLike[str], config: BenchSuiteConfig | None = Non
     def log(line: str) -> None:
         print(line, file=sys.stderr, flush=True)
 
-    for p in config.presets:
-        for name in names:
+    pairs = [(p, name) for p in config.presets for name in names]
+    start = time.perf_counter()
+    engine: dict[str, Any] = {"engine": "sequential"}
+    if config.ray is None:
+        for p, name in pairs:
             log(f"bench: {config.suite}/{name} preset {p}")
-            result = reconstruct(data / name, out / "runs" / p / name,
-                                 preset(p, seed=config.seed, progress=False, threads=config.threads),
-                                 resume=True)  # fmt: skip
-            wall = sum(stage.wall_s for stage in result.stages)  # as recorded, also for stages resumed
-            evaluation = evaluate_scene(result.scene_file, data / name, EvalConfig(samples=config.samples, log=log))
-            runs.append({"suite": config.suite, "scene": name, "preset": p, "wall_s": wall,
-                         "peak_mem_mb": result.peak_mem_mb, "eval": evaluation.to_dict()})  # fmt: skip
+            runs.append(bench_run(str(data), str(out / "runs" / p / name), config.suite, name, p, config.seed,
+                                  config.threads, config.samples, False))  # fmt: skip
+    else:
+        from holousd._errors import HolousdError
+        from holousd.batch._engine import run_tasks
+
+        threads = config.threads or max(1, int(config.num_cpus))
+        tasks = [(f"{name}/{p}", (str(data), str(out / "runs" / p / name), config.suite, name, p, config.seed, threads,
+                                  config.samples, True)) for p, name in pairs]  # fmt: skip
+        outcomes = run_tasks(bench_run, tasks, ray=config.ray, num_cpus=config.num_cpus,
+                             on_done=lambda o: log(f"bench: {config.suite}/{o.key} {'done' if o.ok else 'FAILED'} "
+                                                   f"({o.wall_s:.1f} s in its worker)"))  # fmt: skip
+        failed = [o for o in outcomes if not o.ok]
+        if failed:  # as a sequential run would: no bench.json with scenes missing
+            raise HolousdError(f"{config.suite}/{failed[0].key}: {failed[0].error}"
+                               + (f" (and {len(failed) - 1} more)" if len(failed) > 1 else ""))  # fmt: skip
+        runs = [o.value for o in outcomes]
+        wall = time.perf_counter() - start
+        inside = sum(o.wall_s for o in outcomes)
+        import ray
+
+        slots = max(1.0, float(ray.cluster_resources().get("CPU", 1.0)) // config.num_cpus)
+        engine = {"engine": f"ray {config.ray}", "slots": slots, "tasks": len(outcomes), "wall_s": wall,
+                  "task_wall_s": inside,
+                  # worker time not spent inside a task (start-up, scheduling, transfers, the idle tail), per task
+                  "overhead_per_task_s": max(0.0, (wall * min(slots, len(outcomes)) - inside)
+                                             / len(outcomes))}  # fmt: skip
+    if config.ray is None:
+        engine["wall_s"] = time.perf_counter() - start
     files = []
     payload = {"format": "holousd-bench", "version": 1, "suite": config.suite, "presets": config.presets,
                "scenes": names, "command": config.command or _command_line(config),
-               "date": time.strftime("%Y-%m-%d", time.gmtime()), "machine": machine_info(), "runs": runs}  # fmt: skip
+               "date": time.strftime("%Y-%m-%d", time.gmtime()), "machine": machine_info(), "engine": engine,
+               "runs": runs}  # fmt: skip
     with atomic_path(out / "bench.json") as tmp:
         tmp.write_text(json.dumps(payload, indent=2))
     files.append(out / "bench.json")

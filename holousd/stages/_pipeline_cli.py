@@ -73,6 +73,10 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     bench.add_argument("--resolution", type=resolution, default=(160, 120), metavar="WxH", help="generated size")
     bench.add_argument("--seed", type=int, default=0, help="seed of generation and reconstruction")
     bench.add_argument("--threads", type=positive_int, default=None, help="torch CPU threads (default: torch's)")
+    bench.add_argument("--ray", default=None, metavar="ADDRESS",
+                       help="run the scenes as Ray tasks: 'local' (a Ray instance started here), 'auto' (the "
+                       "running cluster) or HOST:PORT; the figures are those of a sequential run (needs "
+                       "holousd[ray])")  # fmt: skip
     bench.set_defaults(handler=_bench)
 
     demo = subparsers.add_parser(
@@ -170,7 +174,11 @@ def _bench(args: argparse.Namespace) -> int:
     scenes = [s.strip() for s in args.scenes.split(",")] if args.scenes else None
     config = BenchSuiteConfig(suite=args.suite, presets=presets, scenes=scenes, data=args.data, frames=args.frames,
                               width=args.resolution[0], height=args.resolution[1], seed=args.seed,
-                              threads=args.threads)  # fmt: skip
+                              threads=args.threads, ray=args.ray)  # fmt: skip
+    if args.ray is not None:
+        from holousd.batch._cli import _require_ray
+
+        _require_ray()
     result = run_bench(args.out, config)
     for path in result.files:
         print(f"wrote {path}")

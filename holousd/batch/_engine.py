@@ -1,0 +1,152 @@
+"""Run independent tasks on this machine's cores or on a Ray cluster, with the same results either way.
+
+A task is a module-level function and its (picklable) arguments. :func:`run_tasks` runs a list of them:
+
+- ``ray=None``: in a local process pool of ``workers`` processes (spawned, so that torch and Warp start clean in
+  each; Ray is not imported); ``workers=1`` runs them one after another in this process.
+- ``ray="local"``: a Ray instance started on this machine for the run; ``ray="auto"`` or ``ray="HOST:PORT"``: the
+  running cluster (``ray start --head`` on the head node, ``ray start --address HOST:PORT`` on the others). Each
+  task is a Ray task declaring ``num_cpus`` cores and ``memory_mb`` of memory, so that Ray places no more tasks
+  on a node than it can hold.
+
+Every task is wrapped: an exception in one (a capture that cannot be read) becomes its one-line error, and the
+others go on. Outcomes come back in the order the tasks were given, whatever order they finished in, each with
+its wall time inside the worker and the time from submission to its result here.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from holousd._errors import HolousdError
+
+__all__ = ["TaskOutcome", "run_tasks"]
+
+
+@dataclass(kw_only=True)
+class TaskOutcome:
+    """What one task gave."""
+
+    key: str
+    """The task's name (a capture, a scene and preset)."""
+    ok: bool
+    """False when the task raised."""
+    value: Any = None
+    """The task function's return value (None when it failed)."""
+    error: str | None = None
+    """One line: what went wrong (None when it succeeded)."""
+    wall_s: float = 0.0
+    """Seconds the task ran inside its worker."""
+    turnaround_s: float = 0.0
+    """Seconds from submitting the task to holding its result (queueing behind other tasks included)."""
+
+
+def _one_line(text: str) -> str:
+    return " ".join(str(text).split())
+
+
+def _call(fn: Callable[..., Any], args: tuple) -> tuple[bool, Any, float]:
+    """Run ``fn(*args)`` in a worker: ``(True, value, wall_s)`` or ``(False, one-line error, wall_s)``."""
+    start = time.perf_counter()
+    try:
+        value = fn(*args)
+    except HolousdError as exc:
+        return False, _one_line(str(exc)), time.perf_counter() - start
+    except Exception as exc:  # noqa: BLE001 - one failing task must not stop the others; reported, not hidden
+        return False, f"internal error ({type(exc).__name__}: {_one_line(str(exc))})", time.perf_counter() - start
+    return True, value, time.perf_counter() - start
+
+
+def _connect(address: str) -> None:
+    import ray
+
+    if ray.is_initialized():  # a cluster this process already joined (a test's local cluster, a notebook)
+        return
+    try:
+        if address == "local":
+            ray.init(include_dashboard=False, log_to_driver=False)
+        else:
+            ray.init(address=address, include_dashboard=False, log_to_driver=False)
+    except ConnectionError as exc:
+        raise HolousdError(
+            f"--ray {address}: no Ray cluster answered ({_one_line(str(exc))}); start one with `ray start --head` "
+            "(and `ray start --address HEAD:6379` on the other nodes), or pass --ray local to start one here"
+        ) from None
+
+
+def run_tasks(fn: Callable[..., Any], tasks: list[tuple[str, tuple]], *, workers: int | None = None,
+              ray: str | None = None, num_cpus: float = 1.0, memory_mb: float | None = None,
+              on_done: Callable[[TaskOutcome], None] | None = None) -> list[TaskOutcome]:  # fmt: skip
+    """Run ``fn(*args)`` for every ``(key, args)`` of ``tasks``; outcomes in the order of ``tasks``.
+
+    Args:
+        fn: A module-level function (workers import it by name).
+        tasks: ``(key, args)`` per task.
+        workers: Local processes (None: one per core; 1: in this process). Ignored with ``ray``.
+        ray: None (local), ``"local"``, ``"auto"`` or a cluster address ``HOST:PORT``.
+        num_cpus: Cores each Ray task declares.
+        memory_mb: Memory each Ray task declares, MiB (None: none declared).
+        on_done: Called here with each outcome as it arrives (a progress bar).
+    """
+    if not tasks:
+        return []
+    if ray is not None:
+        return _run_ray(fn, tasks, ray, num_cpus, memory_mb, on_done)
+    workers = max(1, min(workers or os.cpu_count() or 1, len(tasks)))
+    outcomes: dict[int, TaskOutcome] = {}
+    submitted = time.perf_counter()
+
+    def done(k: int, result: tuple[bool, Any, float]) -> None:
+        ok, value, wall = result
+        outcome = TaskOutcome(key=tasks[k][0], ok=ok, value=value if ok else None, error=None if ok else value,
+                              wall_s=wall, turnaround_s=time.perf_counter() - submitted)  # fmt: skip
+        outcomes[k] = outcome
+        if on_done is not None:
+            on_done(outcome)
+
+    if workers == 1:
+        for k, (_, args) in enumerate(tasks):
+            done(k, _call(fn, args))
+    else:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+
+        with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+            futures = {pool.submit(_call, fn, args): k for k, (_, args) in enumerate(tasks)}
+            for future in as_completed(futures):
+                done(futures[future], future.result())
+    return [outcomes[k] for k in range(len(tasks))]
+
+
+def _run_ray(fn: Callable[..., Any], tasks: list[tuple[str, tuple]], address: str, num_cpus: float,
+             memory_mb: float | None, on_done: Callable[[TaskOutcome], None] | None) -> list[TaskOutcome]:  # fmt: skip
+    import ray
+
+    _connect(address)
+    options: dict[str, Any] = {"num_cpus": num_cpus, "max_retries": 0}
+    if memory_mb:
+        options["memory"] = int(memory_mb * 2**20)
+    remote = ray.remote(**options)(_call)
+    submitted = time.perf_counter()
+    refs = [remote.remote(fn, args) for _, args in tasks]
+    index = {ref: k for k, ref in enumerate(refs)}
+    outcomes: dict[int, TaskOutcome] = {}
+    pending = list(refs)
+    while pending:
+        ready, pending = ray.wait(pending, num_returns=1)
+        for ref in ready:
+            k = index[ref]
+            try:
+                ok, value, wall = ray.get(ref)
+            except Exception as exc:  # noqa: BLE001 - the worker died (killed, out of memory): that task fails
+                ok, value, wall = False, f"the Ray task failed ({type(exc).__name__}: {_one_line(str(exc))[:300]})", 0.0
+            outcome = TaskOutcome(key=tasks[k][0], ok=ok, value=value if ok else None, error=None if ok else value,
+                                  wall_s=wall, turnaround_s=time.perf_counter() - submitted)  # fmt: skip
+            outcomes[k] = outcome
+            if on_done is not None:
+                on_done(outcome)
+    return [outcomes[k] for k in range(len(tasks))]

@@ -1,0 +1,124 @@
+"""``holousd batch``: one task per capture on a local pool or on Ray; failures reported, reruns resumed."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+from pxr import Sdf
+
+from holousd.batch import BatchConfig, run_batch, run_tasks
+from holousd.stages._pipeline import preset
+from holousd.synth import SynthConfig, generate_suite
+
+
+def _tiny():  # noqa: ANN202 - PipelineConfig
+    cfg = preset("fast", progress=False)
+    return replace(cfg, fit=replace(cfg.fit, iterations=2))
+
+
+@pytest.fixture(scope="module")
+def captures(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
+    root = tmp_path_factory.mktemp("batch")
+    generate_suite("demo", root / "synth", SynthConfig(frames=6, width=48, height=48, progress=False))
+    rooms = [root / "room1", root / "room2"]
+    for room in rooms:
+        shutil.copytree(root / "synth" / "demo", room)
+    broken = root / "broken"
+    broken.mkdir()
+    (broken / "observations.json").write_text("{")  # a corrupt manifest
+    return [rooms[0], broken, rooms[1]]
+
+
+def _layer(path: Path) -> str:
+    layer = Sdf.Layer.OpenAsAnonymous(str(path))
+    data = dict(layer.customLayerData)
+    holo = dict(data.get("holousd", {}))
+    holo.pop("stage", None)  # wall time, memory and run id differ from run to run
+    data["holousd"] = holo
+    layer.customLayerData = data
+    return layer.ExportToString()
+
+
+def _check_rows(rows: list[dict], out: Path, run: list[str]) -> None:
+    assert [Path(r["out"]).name for r in rows] == ["room1", "broken", "room2"]  # the order given
+    bad = rows[1]
+    assert bad["status"] == "failed" and "observations.json" in bad["error"] and "\n" not in bad["error"]
+    assert not (out / "broken").exists() or not any((out / "broken").iterdir())  # nothing half-written
+    for row in (rows[0], rows[2]):
+        assert row["status"] == "done" and row["stages_run"] == run and row["objects"] == 10, row
+
+
+def test_batch_on_a_local_pool_reports_the_failure_and_a_rerun_skips_what_is_done(
+        captures: list[Path], tmp_path: Path) -> None:  # fmt: skip
+    out = tmp_path / "out"
+    result = run_batch(captures, out, BatchConfig(pipeline=_tiny(), until="fit", workers=2, progress=False))
+    _check_rows(result.rows, out, ["observe", "fit"])
+    saved = json.loads((out / "batch.json").read_text())
+    assert [r["status"] for r in saved["captures"]] == ["done", "failed", "done"] and saved["wall_s"] > 0
+    assert _layer(out / "room1" / "10_fit.usda") == _layer(out / "room2" / "10_fit.usda")  # the same capture
+    again = run_batch(captures, out, BatchConfig(pipeline=_tiny(), until="fit", workers=1, progress=False))
+    _check_rows(again.rows, out, [])
+    assert again.rows[0]["stages_skipped"] == ["observe", "fit"]
+
+
+def test_an_interrupted_batch_is_resumed(captures: list[Path], tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    script = (f"from holousd.batch import BatchConfig, run_batch; from tests.test_batch import _tiny; "
+              f"run_batch({[str(c) for c in captures]!r}, {str(out)!r}, "
+              f"BatchConfig(pipeline=_tiny(), until='fit', workers=1, progress=False))")  # fmt: skip
+    root = Path(__file__).resolve().parents[1]
+    proc = subprocess.Popen([sys.executable, "-c", script], cwd=root, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 300
+    while not (out / "room1" / "scene.usda").is_file():  # the first capture done: stop the batch in the next one
+        assert proc.poll() is None and time.monotonic() < deadline, "the batch ended before it could be stopped"
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGINT)
+    proc.wait(timeout=120)
+    assert not (out / "batch.json").exists()  # it did not get to the end
+    assert not (out / "room2" / "10_fit.usda").exists()  # the capture under way was rolled back, not half-written
+    result = run_batch(captures, out, BatchConfig(pipeline=_tiny(), until="fit", workers=1, progress=False))
+    assert result.rows[0]["stages_run"] == [] and result.rows[2]["stages_run"] == ["observe", "fit"]
+    assert _layer(out / "room1" / "10_fit.usda") == _layer(out / "room2" / "10_fit.usda")
+
+
+def _twice(x: int) -> int:
+    if x < 0:
+        raise ValueError(f"negative: {x}")
+    return 2 * x
+
+
+def test_ray_tasks_give_what_the_local_pool_gives(captures: list[Path], tmp_path: Path) -> None:
+    ray = pytest.importorskip("ray", reason="Ray is the optional extra holousd[ray]")
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        outcomes = run_tasks(_twice, [(str(k), (k,)) for k in (3, -1, 5, 0)], ray="auto")
+        assert [o.value for o in outcomes] == [6, None, 10, 0]  # in the order given, whatever order they ended
+        assert not outcomes[1].ok and outcomes[1].error == "internal error (ValueError: negative: -1)"
+        out = tmp_path / "ray"
+        result = run_batch(captures, out, BatchConfig(pipeline=_tiny(), until="fit", ray="auto", progress=False))
+    finally:
+        ray.shutdown()
+    _check_rows(result.rows, out, ["observe", "fit"])
+    local = tmp_path / "local"
+    run_batch(captures[:1], local, BatchConfig(pipeline=_tiny(), until="fit", workers=1, progress=False))
+    assert _layer(out / "room1" / "10_fit.usda") == _layer(local / "room1" / "10_fit.usda")
+
+
+def test_batch_refuses_bad_arguments_before_any_task(captures: list[Path], tmp_path: Path) -> None:
+    from holousd._errors import HolousdError
+
+    with pytest.raises(HolousdError, match="no such capture"):
+        run_batch([captures[0], tmp_path / "missing"], tmp_path / "out", BatchConfig(progress=False))
+    twin = tmp_path / "twin" / "room1"
+    twin.mkdir(parents=True)
+    with pytest.raises(HolousdError, match="two captures are named 'room1'"):
+        run_batch([captures[0], twin], tmp_path / "out", BatchConfig(progress=False))
+    assert not (tmp_path / "out").exists()
