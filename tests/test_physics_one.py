@@ -447,3 +447,42 @@ def test_decomposition_keeps_its_hulls_out_of_a_neighbour() -> None:
     inside_board = _box((0.3, 0.0, 0.005), (0.35, 0.1, 0.015))  # overlaps the ell's own mesh: not the hull's doing
     same = plane_decomposition(ell, tolerance=0.5, max_parts=8, keep_out=[inside_board])
     assert len(same.parts) == 1 and same.intrusion_m3 == 0.0
+
+
+def _with_sdf(scene: SceneGraph, name: str, voxel: float) -> None:
+    """Give ``name`` the SDF of its mesh on a ``voxel`` grid (object coordinates), as the fit would."""
+    from holousd.geometry import VoxelGrid, signed_distance_from_occupancy
+    from holousd.geometry._contact import inside
+    from holousd.usd import SdfField
+
+    mesh = scene.get_mesh(name)
+    grid = VoxelGrid.from_bounds(mesh.points.min(0), mesh.points.max(0), voxel)
+    occupied = inside(trimesh.Trimesh(mesh.points, mesh.faces, process=False), grid.points()).reshape(grid.shape)
+    sdf = signed_distance_from_occupancy(occupied, voxel)
+    scene.set_sdf(name, SdfField(grid=sdf, origin=grid.origin, voxel_size=voxel))
+    scene.save()
+
+
+def test_legs_the_fit_ended_short_are_carried_down_to_the_floor(tmp_path: Path) -> None:
+    legs = [((-0.3, -0.2), 0.015), ((0.25, -0.2), 0.02), ((-0.3, 0.15), 0.03), ((0.25, 0.15), 0.035)]
+    table = _union(_box((-0.3, -0.2, 0.5), (0.3, 0.2, 0.54)),
+                   *(_box((x, y, z), (x + 0.05, y + 0.05, 0.5)) for (x, y), z in legs))  # fmt: skip
+    scene = _scene(tmp_path, {"table": table})
+    _with_sdf(scene, "table", 0.025)  # legs end 1.5 to 3.5 cm up: within a cell and a half of one another
+    (rec,) = setup_physics(scene, PhysicsSetupConfig()).objects
+    assert any(e.startswith("extend:base:4x") for e in rec.edits) and rec.settled_m == [0.0, 0.0, 0.0]  # not moved
+    world = _world(scene, "table")
+    for (x, y), _ in legs:  # every leg now stands on the floor, flat, 1 mm above it
+        foot = world[(np.abs(world[:, 0] - x - 0.025) < 0.03) & (np.abs(world[:, 1] - y - 0.025) < 0.03)]
+        assert foot[:, 2].min() == pytest.approx(0.001, abs=1e-5), (x, y, foot[:, 2].min())
+    assert trimesh.Trimesh(*_world_mesh(scene, "table"), process=False).is_watertight
+    from holousd.geometry import VoxelGrid, sample_grid
+
+    sdf = scene.get_sdf("table")  # the SDF follows: inside the carried-down end of the shortest leg
+    grid = VoxelGrid(origin=sdf.origin, voxel_size=sdf.voxel_size, shape=sdf.resolution)
+    local = np.array([[0.275, 0.175, 0.01]]) - np.asarray(scene.get_pose("table").translation)
+    assert sample_grid(sdf.grid, grid, local, outside=1.0)[0] < 0
+    floating = _scene(tmp_path / "far", {"box": _box((0, 0, 0.06), (0.2, 0.2, 0.2))})  # 6 cm up: no cell away
+    _with_sdf(floating, "box", 0.025)
+    (rec,) = setup_physics(floating, PhysicsSetupConfig()).objects
+    assert not any(e.startswith("extend") for e in rec.edits) and rec.shift_refused_m > 0.05

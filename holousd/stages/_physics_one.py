@@ -114,6 +114,13 @@ class PhysicsSetupConfig:
     max_shift: float = 0.01
     """Largest move of an object from its fitted pose, metres (about what its own depth and masks allow: the
     observed surface moves with it). A larger one is refused and recorded; the object stays where it was seen."""
+    max_extend: float = 0.05
+    """Feet carried down, metres: once an object is set on its support (or is within one cell of its SDF grid of
+    it, and at most this much), each of its feet (the pieces of it within one cell, at most this much, of its
+    lowest point: the ends of legs, a base) that ends above the base is carried straight down onto it, in its mesh
+    and SDF: a fit cannot end a bottom it barely sees closer than a cell (on coarse cells legs end short of the
+    floor, at different heights, and the table rocks on the longest), and the observed surface stays where it
+    was seen. An object farther above its support than that and ``max_shift`` is left floating (recorded)."""
     separate: bool = True
     """Cut apart neighbours whose meshes overlap, at the middle of the overlap."""
     min_overlap: float = 1e-7
@@ -342,6 +349,7 @@ def _rest(bodies: dict[str, _Body], relations: Relations, room: tuple[np.ndarray
         base = height + config.clearance
         depth = _base_depth(points, config.base_depth)
         drop = (base - depth) - bottom  # < 0: move down so that the underside is cut `depth` deep
+        step = 0.0
         if drop < 0:
             moved = float(np.linalg.norm(np.asarray(body.pose.translation, float)
                                          - np.asarray(body.fit_pose.translation, float)))  # fmt: skip
@@ -355,13 +363,70 @@ def _rest(bodies: dict[str, _Body], relations: Relations, room: tuple[np.ndarray
                     if other in out:
                         out[other] = replace(out[other].moved(shift), edits=(*out[other].edits, "shift"))
                 body = out[name]
-            if -drop > step:  # the rest is refused: the base is cut less deep (or the object floats)
-                body = replace(body, refused=float(-drop - step))
+        cell = body.sdf.voxel_size if body.sdf is not None else 0.0  # what the fit could not resolve
+        if cell > 0 and float(body.world()[0][:, 2].min()) - base <= min(config.max_extend, cell):
+            # on its support but for a cell or less: feet the fit ended short are carried down onto it
+            extended = _extend_down(body, base - depth, min(config.max_extend, cell))
+            if extended is not None:
+                out[name] = body = extended
+                drop, step = 0.0, 0.0
+        if -drop > step:  # the rest is refused: the base is cut less deep (or the object floats)
+            body = replace(body, refused=float(-drop - step))
         body = body.cut(up, base, "cut:base")
         if support_parts:  # what of the support's collider still lies inside the child
             body = body.minus_convex(support_parts, "cut:parent")
         out[name] = body
     return out
+
+
+def _extend_down(body: _Body, target: float, reach: float) -> _Body | None:
+    """The body with each of its feet carried straight down to height ``target`` (world), in its mesh and SDF.
+
+    Feet are the pieces of the solid lying less than ``reach`` above its lowest point (the ends of legs the fit
+    ended at different heights, a base); each whose bottom lies above ``target`` gets the convex hull of itself and
+    its shadow at ``target`` united with the mesh. None when nothing is to be carried down or the mesh is not a
+    closed manifold."""
+    import manifold3d
+    from scipy.spatial import ConvexHull, QhullError
+
+    from holousd.geometry._contact import _mesh, _solid
+
+    world = _solid(body.world())
+    if world is None:
+        return None
+    bottom = float(body.world()[0][:, 2].min())
+    near = world.trim_by_plane((0.0, 0.0, -1.0), -(bottom + reach))  # keeps z <= bottom + reach
+    inverse = np.linalg.inv(body.pose.matrix())
+    parts, longest = [], 0.0
+    for foot in near.decompose():
+        q = _mesh(foot)[0]
+        lowest = float(q[:, 2].min())
+        if lowest <= target + 1e-4 or foot.volume() <= 0:
+            continue
+        shadow = q.copy()
+        shadow[:, 2] = target
+        prism = np.concatenate([q, shadow]) @ inverse[:3, :3].T + inverse[:3, 3]  # object coordinates
+        try:
+            hull = ConvexHull(prism)
+        except (QhullError, ValueError):
+            continue
+        faces = hull.simplices.copy()
+        centre = prism[hull.vertices].mean(0)
+        normal = np.cross(prism[faces[:, 1]] - prism[faces[:, 0]], prism[faces[:, 2]] - prism[faces[:, 0]])
+        flip = np.einsum("ij,ij->i", normal, prism[faces[:, 0]] - centre) < 0
+        faces[flip] = faces[flip][:, ::-1]
+        parts.append((prism, faces))
+        longest = max(longest, lowest - target)
+    solid = _solid((body.mesh.points, body.mesh.faces))
+    solids = [s for s in (_solid(p) for p in parts) if s is not None]
+    if solid is None or not solids:
+        return None
+    united = manifold3d.Manifold.batch_boolean([solid, *solids], manifold3d.OpType.Add)
+    if united.is_empty():
+        return None
+    points_u, faces_u = without_zero_area_faces(_mesh(united))
+    return body.plus_convex(parts, MeshData(points=points_u, faces=faces_u),
+                            f"extend:base:{len(solids)}x{100 * longest:.1f}cm")  # fmt: skip
 
 
 def _flatten_top(parent: _Body, children: list[_Body], config: PhysicsSetupConfig) -> _Body:

@@ -1,0 +1,62 @@
+"""Completion priors: proposals for every object's unseen geometry, and how well each explains the observations.
+
+The proposers (:func:`make_proposer`; built in: ``stage1``, ``extrude``, ``symmetry``, ``primitive``,
+``visual_hull``, and ``learned`` for a model from a weights path; plug-ins under the entry-point group
+``holousd.completion``) turn an object's evidence (:func:`object_evidence`) into candidate shapes;
+:func:`observation_energy` scores each against every frame (E_obs). :func:`propose` does both for a list of
+proposers. The physics tree search that chooses among them is the stage after the fit.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from holousd.priors._api import (
+    ENTRY_POINT_GROUP,
+    Candidate,
+    CompletionProposer,
+    FrameEvidence,
+    ObjectEvidence,
+    available_proposers,
+    make_proposer,
+)
+from holousd.priors._energy import ObservationEnergy, observation_energy
+from holousd.priors._evidence import object_evidence
+
+__all__ = [
+    "ENTRY_POINT_GROUP",
+    "BUILTIN",
+    "Candidate",
+    "CompletionProposer",
+    "FrameEvidence",
+    "ObjectEvidence",
+    "ObservationEnergy",
+    "available_proposers",
+    "make_proposer",
+    "object_evidence",
+    "observation_energy",
+    "propose",
+]
+
+BUILTIN = ("stage1", "extrude", "symmetry", "primitive", "visual_hull")
+"""The proposers that need no weights, in the order :func:`propose` runs them by default."""
+
+
+def propose(evidence: ObjectEvidence, proposers: list[str | CompletionProposer] | None = None, *, k: int = 2,
+            seed: int = 0,
+            options: dict[str, dict[str, Any]] | None = None) -> list[tuple[Candidate, ObservationEnergy]]:  # fmt: skip
+    """Candidates of every proposer (``k`` each, seeded), each with its E_obs, in proposer order.
+
+    Args:
+        evidence: The object's evidence.
+        proposers: Names (or proposer objects); default :data:`BUILTIN`.
+        k: Candidates per proposer at most.
+        seed: Seed of every proposer (the same seed gives the same candidates).
+        options: Keyword arguments per proposer name (``{"learned": {"weights": "model.pt"}}``).
+    """
+    out = []
+    for entry in proposers or list(BUILTIN):
+        proposer = make_proposer(entry, **(options or {}).get(entry, {})) if isinstance(entry, str) else entry
+        for candidate in proposer.propose(evidence, k, seed):
+            out.append((candidate, observation_energy(candidate, evidence, seed=seed)))
+    return out

@@ -1,0 +1,366 @@
+"""The built-in completion proposers (no weights) and the learned-prior adapter (weights from a path).
+
+Every proposer works on a voxel occupancy in object coordinates, on the object's stage-1 grid (its voxel size)
+grown to what the candidate needs (down to the support, across a symmetry plane), and turns it into a candidate
+with :func:`_candidate`: the signed distance of the occupancy and its marching-cubes mesh (watertight, largest
+component). Where the stage-1 shape is all a proposer has, it starts from that shape's inside (``sdf < 0``).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from holousd._errors import HolousdError
+from holousd.geometry._grid import VoxelGrid, sample_grid, signed_distance_from_occupancy
+from holousd.geometry._meshing import mesh_from_sdf
+from holousd.priors._api import Candidate, ObjectEvidence
+from holousd.usd._types import SdfField
+
+__all__ = ["ExtrudeProposer", "LearnedProposer", "PrimitiveProposer", "Stage1Proposer", "SymmetryProposer",
+           "VisualHullProposer"]  # fmt: skip
+
+
+# ----------------------------------------------------------------------------------------------- shared helpers
+def _voxel(evidence: ObjectEvidence) -> float:
+    if evidence.sdf is not None:
+        return float(evidence.sdf.voxel_size)
+    extent = float(np.ptp(evidence.mesh.points, axis=0).max()) if len(evidence.mesh.points) else 0.1
+    return max(extent / 40.0, 1e-3)
+
+
+def _grid(lo: np.ndarray, hi: np.ndarray, voxel: float) -> VoxelGrid:
+    return VoxelGrid.from_bounds(np.asarray(lo, float), np.asarray(hi, float), voxel, pad=2)
+
+
+def _stage1_inside(evidence: ObjectEvidence, points: np.ndarray) -> np.ndarray:
+    """[P] bool: object-coordinate points inside the stage-1 shape (its SDF, or its mesh without one)."""
+    if evidence.sdf is not None:
+        sdf = evidence.sdf
+        grid = VoxelGrid(origin=sdf.origin, voxel_size=sdf.voxel_size, shape=sdf.resolution)
+        return sample_grid(sdf.grid, grid, points, outside=1.0) < sdf.iso_level
+    import trimesh
+
+    from holousd.geometry._contact import inside
+
+    return inside(trimesh.Trimesh(evidence.mesh.points, evidence.mesh.faces, process=False), points)
+
+
+def _local(evidence: ObjectEvidence, world: np.ndarray) -> np.ndarray:
+    inverse = np.linalg.inv(evidence.pose.matrix())
+    return np.asarray(world, float) @ inverse[:3, :3].T + inverse[:3, 3]
+
+
+def _upright(evidence: ObjectEvidence) -> bool:
+    """True when the object's z axis is the world's (fitted poses are: rotation about z at most)."""
+    rotation = evidence.pose.matrix()[:3, :3]
+    return bool(abs(rotation[2, 2]) > 1 - 1e-6)
+
+
+def _support_z(evidence: ObjectEvidence) -> float | None:
+    """The support's surface height in object coordinates (None when not known or the object is tilted)."""
+    if evidence.support_height is None or not _upright(evidence):
+        return None
+    return float(evidence.support_height - evidence.pose.matrix()[2, 3])
+
+
+def _candidate(name: str, seed: int, occupied: np.ndarray, grid: VoxelGrid, note: str,
+               max_faces: int | None = None) -> Candidate | None:  # fmt: skip
+    """The candidate of an occupancy on ``grid`` (object coordinates); None when it is empty."""
+    if not occupied.any():
+        return None
+    sdf = signed_distance_from_occupancy(occupied.reshape(grid.shape), grid.voxel_size)
+    meshed = mesh_from_sdf(sdf, grid.origin, grid.voxel_size, max_faces=max_faces)
+    if meshed is None or not meshed.watertight:
+        return None
+    return Candidate(proposer=name, seed=seed, mesh=meshed.mesh,
+                     sdf=SdfField(grid=sdf, origin=grid.origin, voxel_size=grid.voxel_size), note=note)  # fmt: skip
+
+
+def _stage1_bounds(evidence: ObjectEvidence) -> tuple[np.ndarray, np.ndarray]:
+    points = np.asarray(evidence.mesh.points, float)
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    if len(evidence.points):
+        seen = _local(evidence, evidence.points)
+        lo, hi = np.minimum(lo, seen.min(axis=0)), np.maximum(hi, seen.max(axis=0))
+    return lo, hi
+
+
+# ----------------------------------------------------------------------------------------------- proposers
+class Stage1Proposer:
+    """The stage-1 (fitted) shape itself: the candidate every search keeps to compare against."""
+
+    name = "stage1"
+
+    def propose(self, evidence: ObjectEvidence, k: int, seed: int) -> list[Candidate]:
+        if k < 1 or len(evidence.mesh.faces) == 0:
+            return []
+        return [Candidate(proposer=self.name, seed=seed, mesh=evidence.mesh, sdf=evidence.sdf, note="as fitted")]
+
+
+class ExtrudeProposer:
+    """Support extrusion: the unseen lower part carried along gravity down to the support's surface.
+
+    Candidate 1 carries every column of the stage-1 shape down to the support (an object whose sides were hidden);
+    candidate 2 only the columns that already reach below half the object's height (legs and sides seen in part,
+    continued to the floor; a table top's middle stays open). Needs an upright object and a known support."""
+
+    name = "extrude"
+
+    def propose(self, evidence: ObjectEvidence, k: int, seed: int) -> list[Candidate]:
+        floor = _support_z(evidence)
+        if floor is None or k < 1:
+            return []
+        lo, hi = _stage1_bounds(evidence)
+        if floor >= hi[2]:
+            return []
+        lo = lo.copy()
+        lo[2] = min(lo[2], floor)
+        grid = _grid(lo, hi, _voxel(evidence))
+        occupied = _stage1_inside(evidence, grid.points()).reshape(grid.shape)
+        z = grid.origin[2] + grid.voxel_size * np.arange(grid.shape[2])
+        above = z >= floor
+        has = occupied.any(axis=2)
+        if not has.any():
+            return []
+        bottom = np.where(has, np.argmax(occupied, axis=2), grid.shape[2])  # lowest occupied sample per column
+        mid = lo[2] + 0.5 * (hi[2] - max(lo[2], floor))
+        out = []
+        for variant in ("all columns", "columns reaching below mid-height"):
+            if len(out) >= k:
+                break
+            columns = has if variant == "all columns" else has & (z[np.minimum(bottom, grid.shape[2] - 1)] < mid)
+            if not columns.any():
+                continue
+            below = np.arange(grid.shape[2])[None, None, :] <= bottom[:, :, None]
+            filled = occupied | (columns[:, :, None] & below & above[None, None, :])
+            found = _candidate(self.name, seed, filled, grid, f"{variant} carried down to z = {floor:.3f} m")
+            if found is not None:
+                out.append(found)
+        return out
+
+
+class SymmetryProposer:
+    """Reflective symmetry about vertical planes: the stage-1 shape united with its mirror image.
+
+    Planes through the stage-1 shape's centre, at every 15 degrees about z; each is scored by how well the
+    observed surface points mirrored across it land on observed points (mean distance to the nearest, capped at
+    5 cm, over the mirrored points that land inside the observed extent); the ``k`` best give candidates."""
+
+    name = "symmetry"
+    cap = 0.05
+
+    def propose(self, evidence: ObjectEvidence, k: int, seed: int) -> list[Candidate]:
+        from scipy.spatial import cKDTree
+
+        if k < 1 or len(evidence.points) < 20 or not _upright(evidence):
+            return []
+        seen = _local(evidence, evidence.points)
+        lo, hi = _stage1_bounds(evidence)
+        centre = (lo + hi) / 2
+        tree = cKDTree(seen)
+        scored = []
+        for degrees in range(0, 180, 15):
+            a = np.radians(degrees)
+            n = np.array([np.cos(a), np.sin(a), 0.0])
+            mirrored = seen - 2.0 * ((seen - centre) @ n)[:, None] * n
+            distance, _ = tree.query(mirrored)
+            scored.append((float(np.minimum(distance, self.cap).mean()), degrees, n))
+        scored.sort(key=lambda s: (s[0], s[1]))
+        out = []
+        for score, degrees, n in scored[:k]:
+            corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+            reflected = corners - 2.0 * ((corners - centre) @ n)[:, None] * n
+            grid = _grid(np.minimum(lo, reflected.min(0)), np.maximum(hi, reflected.max(0)), _voxel(evidence))
+            pts = grid.points().astype(np.float64)
+            mirror = pts - 2.0 * ((pts - centre) @ n)[:, None] * n
+            occupied = _stage1_inside(evidence, pts) | _stage1_inside(evidence, mirror)
+            found = _candidate(self.name, seed, occupied, grid,
+                               f"mirrored across the vertical plane at {degrees} deg through the centre "
+                               f"(fit {100 * score:.1f} cm)")  # fmt: skip
+            if found is not None:
+                out.append(found)
+        return out
+
+
+class PrimitiveProposer:
+    """Primitive fits to the observed surface points: an upright box (turned about z to the points' principal
+    axes, and unturned) and an upright cylinder (least-squares circle), each from the support's surface (or the
+    points' lowest) to their highest; ranked by the points' mean distance to the primitive's surface."""
+
+    name = "primitive"
+
+    def propose(self, evidence: ObjectEvidence, k: int, seed: int) -> list[Candidate]:
+        if k < 1 or len(evidence.points) < 20 or not _upright(evidence):
+            return []
+        seen = _local(evidence, evidence.points)
+        floor = _support_z(evidence)
+        z0 = float(np.percentile(seen[:, 2], 1)) if floor is None else floor
+        z1 = float(np.percentile(seen[:, 2], 99))
+        if z1 <= z0:
+            return []
+        xy = seen[:, :2]
+        centred = xy - xy.mean(0)
+        _, _, axes = np.linalg.svd(centred, full_matrices=False)
+        options = []
+        for label, axis in (("box along the principal axes", axes[0]), ("box along the object axes", np.eye(2)[0])):
+            u, v = axis / np.linalg.norm(axis), np.array([-axis[1], axis[0]]) / np.linalg.norm(axis)
+            pu, pv = xy @ u, xy @ v
+            bounds = (np.percentile(pu, [1, 99]), np.percentile(pv, [1, 99]))
+            du = np.minimum(np.abs(pu - bounds[0][0]), np.abs(pu - bounds[0][1]))
+            dv = np.minimum(np.abs(pv - bounds[1][0]), np.abs(pv - bounds[1][1]))
+            dz = np.minimum(np.abs(seen[:, 2] - z0), np.abs(seen[:, 2] - z1))
+            residual = float(np.minimum(np.minimum(du, dv), dz).mean())
+            options.append((residual, label, ("box", u, v, bounds)))
+        # circle: x^2 + y^2 + D x + E y + F = 0 in least squares (Kasa)
+        a = np.column_stack([xy, np.ones(len(xy))])
+        b = -(xy**2).sum(1)
+        (d, e, f), *_ = np.linalg.lstsq(a, b, rcond=None)
+        centre = np.array([-d / 2, -e / 2])
+        radius_sq = float(centre @ centre - f)
+        if radius_sq > 0:
+            radius = float(np.sqrt(radius_sq))
+            dr = np.abs(np.linalg.norm(xy - centre, axis=1) - radius)
+            dz = np.minimum(np.abs(seen[:, 2] - z0), np.abs(seen[:, 2] - z1))
+            options.append((float(np.minimum(dr, dz).mean()), "upright cylinder", ("cylinder", centre, radius)))
+        options.sort(key=lambda o: o[0])
+        out = []
+        voxel = _voxel(evidence)
+        for residual, label, shape in options[:k]:
+            if shape[0] == "box":
+                _, u, v, (bu, bv) = shape
+                corners = np.array([bu[i] * u + bv[j] * v for i in (0, 1) for j in (0, 1)])
+                lo = np.array([*corners.min(0), z0])
+                hi = np.array([*corners.max(0), z1])
+                grid = _grid(lo, hi, voxel)
+                pts = grid.points().astype(np.float64)
+                pu, pv = pts[:, :2] @ u, pts[:, :2] @ v
+                occupied = (pu >= bu[0]) & (pu <= bu[1]) & (pv >= bv[0]) & (pv <= bv[1])
+                size = f"{100 * (bu[1] - bu[0]):.0f} x {100 * (bv[1] - bv[0]):.0f} x {100 * (z1 - z0):.0f} cm"
+            else:
+                _, centre, radius = shape
+                grid = _grid(np.array([*(centre - radius), z0]), np.array([*(centre + radius), z1]), voxel)
+                pts = grid.points().astype(np.float64)
+                occupied = np.linalg.norm(pts[:, :2] - centre, axis=1) <= radius
+                size = f"radius {100 * radius:.1f} cm, height {100 * (z1 - z0):.0f} cm"
+            occupied &= (pts[:, 2] >= z0) & (pts[:, 2] <= z1)
+            found = _candidate(self.name, seed, occupied, grid, f"{label}, {size} (fit {100 * residual:.1f} cm)")
+            if found is not None:
+                out.append(found)
+        return out
+
+
+class VisualHullProposer:
+    """Space carving from every frame: a voxel stays unless some frame saw through it (background, or depth
+    beyond it by more than ``margin``) where it projects; voxels behind other objects' surfaces are unknown and
+    stay. Within the stage-1 shape's extent grown by ``grow`` metres, above the support."""
+
+    name = "visual_hull"
+
+    def __init__(self, margin: float = 0.02, grow: float = 0.1, tolerance: float = 0.1) -> None:
+        self.margin = float(margin)
+        self.grow = float(grow)
+        self.tolerance = float(tolerance)  # fraction of seeing frames allowed to see through (mask noise)
+
+    def propose(self, evidence: ObjectEvidence, k: int, seed: int) -> list[Candidate]:
+        if k < 1 or not evidence.frames:
+            return []
+        lo, hi = _stage1_bounds(evidence)
+        lo, hi = lo - self.grow, hi + self.grow
+        floor = _support_z(evidence)
+        if floor is not None:
+            lo[2] = max(lo[2], floor)
+        grid = _grid(lo, hi, _voxel(evidence))
+        local = grid.points().astype(np.float64)
+        world = evidence.pose.apply(local)
+        hits = np.zeros(len(world), np.int32)
+        through = np.zeros(len(world), np.int32)
+        seen = np.zeros(len(world), np.int32)
+        for frame in evidence.frames:
+            row, col, z, valid = _project(frame, world)
+            label = frame.labels[row, col]
+            seen += valid
+            hits += valid & (label == evidence.instance_id)
+            free = valid & (label == 0)
+            if frame.depth is not None:
+                d = frame.depth[row, col]
+                measured = d > 0
+                free = valid & np.where(measured, d > z + self.margin, label == 0)
+            through += free
+        kept = (hits > 0) & (through <= self.tolerance * np.maximum(seen, 1))
+        if floor is not None:
+            kept &= local[:, 2] >= floor
+        return [c for c in [_candidate(self.name, seed, kept, grid, "carved from every frame")] if c is not None][:k]
+
+
+def _project(frame, world: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # noqa: ANN001
+    pose = frame.camera_to_world
+    cam = (world - pose[:3, 3]) @ pose[:3, :3]
+    z = cam[:, 2]
+    k = frame.intrinsics
+    h, w = frame.labels.shape
+    with np.errstate(divide="ignore", invalid="ignore"):
+        inv = 1.0 / np.where(z > 1e-6, z, 1.0)
+        u = np.rint(k[0, 0] * cam[:, 0] * inv + k[0, 2])
+        v = np.rint(k[1, 1] * cam[:, 1] * inv + k[1, 2])
+    valid = (z > 1e-3) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    return np.where(valid, v, 0).astype(np.int64), np.where(valid, u, 0).astype(np.int64), z, valid
+
+
+class LearnedProposer:
+    """A learned completion prior (a multi-view diffusion or image-to-3D model distilled to a voxel completer)
+    loaded from ``weights``, a TorchScript file the user gives (``torch.jit.save``); never downloaded.
+
+    The model takes a [1, 2, X, Y, Z] float tensor on the candidate grid (channel 0: the stage-1 occupancy;
+    channel 1: the voxels holding observed surface points) and returns [1, 1, X, Y, Z] occupancy logits; the
+    candidates are its occupancy at the thresholds 0.5, 0.35 and 0.65 (in that order, ``k`` of them)."""
+
+    name = "learned"
+
+    def __init__(self, weights: str | Path | None = None, device: str = "cpu", grow: float = 0.1) -> None:
+        if weights is None:
+            raise HolousdError("completion proposer 'learned' needs weights=PATH (a TorchScript file); holousd "
+                               "never downloads a model")  # fmt: skip
+        path = Path(weights)
+        if not path.is_file():
+            raise HolousdError(f"{path}: no such weights file; give the TorchScript file of the completion model")
+        import torch
+
+        try:
+            self.model = torch.jit.load(str(path), map_location=device).eval()
+        except Exception as exc:  # noqa: BLE001 - a corrupt or foreign file: say so, one line
+            raise HolousdError(f"{path}: not a TorchScript model ({type(exc).__name__}); save it with "
+                               "torch.jit.save") from None  # fmt: skip
+        self.device = device
+        self.grow = float(grow)
+        self.weights = path
+
+    def propose(self, evidence: ObjectEvidence, k: int, seed: int) -> list[Candidate]:
+        import torch
+
+        if k < 1:
+            return []
+        lo, hi = _stage1_bounds(evidence)
+        grid = _grid(lo - self.grow, hi + self.grow, _voxel(evidence))
+        pts = grid.points().astype(np.float64)
+        first = _stage1_inside(evidence, pts).reshape(grid.shape)
+        observed = np.zeros(grid.shape, bool)
+        if len(evidence.points):
+            idx = np.rint((_local(evidence, evidence.points) - grid.origin) / grid.voxel_size).astype(np.int64)
+            ok = np.all((idx >= 0) & (idx < np.asarray(grid.shape)), axis=1)
+            observed[tuple(idx[ok].T)] = True
+        x = torch.from_numpy(np.stack([first, observed]).astype(np.float32))[None].to(self.device)
+        torch.manual_seed(seed)
+        with torch.no_grad():
+            logits = self.model(x)
+        if tuple(logits.shape) != (1, 1, *grid.shape):
+            raise HolousdError(f"{self.weights}: the model returned shape {tuple(logits.shape)}, expected "
+                               f"{(1, 1, *grid.shape)} (occupancy logits on the input grid)")  # fmt: skip
+        prob = torch.sigmoid(logits)[0, 0].cpu().numpy()
+        out = []
+        for threshold in (0.5, 0.35, 0.65)[:k]:
+            found = _candidate(self.name, seed, prob > threshold, grid, f"{self.weights.name} at p > {threshold}")
+            if found is not None:
+                out.append(found)
+        return out

@@ -1,0 +1,78 @@
+"""Gather one object's evidence from a reconstructed scene and its capture (:class:`ObjectEvidence`)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from holousd._errors import SceneError
+from holousd.io._observations import Observations
+from holousd.priors._api import FrameEvidence, ObjectEvidence
+from holousd.usd._scene import BACKGROUND, SceneGraph
+from holousd.usd._types import MeshData
+
+__all__ = ["object_evidence"]
+
+
+def _world(scene: SceneGraph, name: str) -> MeshData | None:
+    try:
+        mesh = scene.get_mesh(name)
+    except SceneError:
+        return None
+    return MeshData(points=scene.get_pose(name).apply(mesh.points), faces=mesh.faces)
+
+
+def object_evidence(scene: SceneGraph, obs: Observations, name: str, *, max_frames: int | None = 24,
+                    stride: int = 2, margin: float = 0.05) -> ObjectEvidence:  # fmt: skip
+    """The evidence of object ``name``: the frames whose mask shows it (at most ``max_frames``, evenly spaced),
+    its masked depth back-projected every ``stride`` pixels, its stage-1 mesh and SDF, its support (from the
+    scene's relations when it has them) and the height of the support's surface under it, and the meshes of the
+    support and of every object within ``margin`` metres of it."""
+    info = scene.node_info(name)
+    mesh = scene.get_mesh(name)
+    try:
+        sdf = scene.get_sdf(name)
+    except SceneError:
+        sdf = None
+    pose = scene.get_pose(name)
+    showing = [i for i in range(len(obs)) if obs.has_masks and (obs.mask(i) == info.instance_id).any()]
+    if max_frames is not None and len(showing) > max_frames:
+        showing = [showing[int(j)] for j in np.linspace(0, len(showing) - 1, max_frames).round()]
+    frames, points = [], []
+    for i in showing:
+        labels = np.asarray(obs.mask(i), np.int32)
+        depth = obs.depth(i) if obs.has_depth and obs.depth_kind == "metric" else None
+        frame = FrameEvidence(index=i, intrinsics=np.asarray(obs.intrinsics[i], float),
+                              camera_to_world=np.asarray(obs.poses[i], float), labels=labels,
+                              depth=None if depth is None else np.asarray(depth, np.float32))  # fmt: skip
+        frames.append(frame)
+        if frame.depth is not None:
+            sel = (labels == info.instance_id) & (frame.depth > 0)
+            rows, cols = np.nonzero(sel[::stride, ::stride])
+            rows, cols = rows * stride, cols * stride
+            z = frame.depth[rows, cols].astype(np.float64)
+            k = frame.intrinsics
+            cam = np.stack([(cols - k[0, 2]) / k[0, 0] * z, (rows - k[1, 2]) / k[1, 1] * z, z], axis=1)
+            points.append(cam @ frame.camera_to_world[:3, :3].T + frame.camera_to_world[:3, 3])
+    world = pose.apply(mesh.points)
+    lo, hi = world.min(0) - margin, world.max(0) + margin
+    support = scene.get_support(name)
+    neighbours: dict[str, MeshData] = {}
+    for other in [BACKGROUND, *scene.objects()]:
+        if other == name:
+            continue
+        found = _world(scene, other)
+        if found is None or len(found.points) == 0:
+            continue
+        near = np.all(found.points.max(0) >= lo) and np.all(found.points.min(0) <= hi)
+        if other == support or (other != BACKGROUND and near):
+            neighbours[other] = found
+    height = None
+    below = neighbours.get(support) if support is not None else None
+    if below is not None:  # the support's highest point under the object's footprint, below its base
+        p = below.points
+        under = np.all((p[:, :2] >= lo[:2]) & (p[:, :2] <= hi[:2]), axis=1) & (p[:, 2] <= world[:, 2].min() + margin)
+        if under.any():
+            height = float(p[under, 2].max())
+    return ObjectEvidence(name=name, instance_id=info.instance_id, pose=pose, mesh=mesh, sdf=sdf, frames=frames,
+                          points=np.concatenate(points) if points else np.zeros((0, 3)), support=support,
+                          support_height=height, neighbours=neighbours)  # fmt: skip
