@@ -66,8 +66,9 @@ def _support_z(evidence: ObjectEvidence) -> float | None:
 
 
 def _candidate(name: str, seed: int, occupied: np.ndarray, grid: VoxelGrid, note: str,
-               max_faces: int | None = None) -> Candidate | None:  # fmt: skip
-    """The candidate of an occupancy on ``grid`` (object coordinates); None when it is empty."""
+               max_faces: int | None = 4000) -> Candidate | None:  # fmt: skip
+    """The candidate of an occupancy on ``grid`` (object coordinates), its mesh simplified to about
+    ``max_faces`` (within a voxel); None when it is empty."""
     if not occupied.any():
         return None
     sdf = signed_distance_from_occupancy(occupied.reshape(grid.shape), grid.voxel_size)
@@ -308,9 +309,29 @@ def _project(frame, world: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarr
     return np.where(valid, v, 0).astype(np.int64), np.where(valid, u, 0).astype(np.int64), z, valid
 
 
+def _load_model(path: Path, device: str):  # noqa: ANN202 - a callable torch module
+    """A model saved with ``torch.export.save`` (a .pt2 program; its grid dimensions exported dynamic) or, for
+    older models, ``torch.jit.save``."""
+    import warnings
+
+    import torch
+
+    try:
+        return torch.export.load(str(path)).module().to(device)
+    except Exception:  # noqa: BLE001, S110 - not an exported program: perhaps TorchScript
+        pass
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DeprecationWarning)
+            return torch.jit.load(str(path), map_location=device).eval()
+    except Exception as exc:  # noqa: BLE001 - a corrupt or foreign file: say so, one line
+        raise HolousdError(f"{path}: not a saved model ({type(exc).__name__}); save it with torch.export.save "
+                           "(or torch.jit.save)") from None  # fmt: skip
+
+
 class LearnedProposer:
     """A learned completion prior (a multi-view diffusion or image-to-3D model distilled to a voxel completer)
-    loaded from ``weights``, a TorchScript file the user gives (``torch.jit.save``); never downloaded.
+    loaded from ``weights``, a file the user gives (``torch.export.save``, or TorchScript); never downloaded.
 
     The model takes a [1, 2, X, Y, Z] float tensor on the candidate grid (channel 0: the stage-1 occupancy;
     channel 1: the voxels holding observed surface points) and returns [1, 1, X, Y, Z] occupancy logits; the
@@ -320,18 +341,12 @@ class LearnedProposer:
 
     def __init__(self, weights: str | Path | None = None, device: str = "cpu", grow: float = 0.1) -> None:
         if weights is None:
-            raise HolousdError("completion proposer 'learned' needs weights=PATH (a TorchScript file); holousd "
+            raise HolousdError("completion proposer 'learned' needs weights=PATH (a saved model file); holousd "
                                "never downloads a model")  # fmt: skip
         path = Path(weights)
         if not path.is_file():
-            raise HolousdError(f"{path}: no such weights file; give the TorchScript file of the completion model")
-        import torch
-
-        try:
-            self.model = torch.jit.load(str(path), map_location=device).eval()
-        except Exception as exc:  # noqa: BLE001 - a corrupt or foreign file: say so, one line
-            raise HolousdError(f"{path}: not a TorchScript model ({type(exc).__name__}); save it with "
-                               "torch.jit.save") from None  # fmt: skip
+            raise HolousdError(f"{path}: no such weights file; give the saved completion model (torch.export.save)")
+        self.model = _load_model(path, device)
         self.device = device
         self.grow = float(grow)
         self.weights = path

@@ -1,7 +1,8 @@
 """E_obs: how well a candidate shape explains an object's observations, re-rendered into every frame.
 
-The candidate's surface (vertices plus area-weighted samples, about ``samples`` points) is projected into each
-frame and z-buffered per pixel (the nearest point wins; one pixel of dilation closes the gaps between samples).
+Each frame is rendered exactly at the pixel centres: the candidate's surface samples (vertices plus ``samples``
+area-weighted points) find the pixels it may cover, and a ray through each of those pixels' centres (and their
+neighbours') gives the candidate's depth there, or a miss (trimesh's ray-triangle queries).
 Per frame, on the pixels not hidden by something observed in front of the candidate (depth smaller than the
 candidate's by more than ``margin``):
 
@@ -54,27 +55,51 @@ def _surface(candidate: Candidate, evidence: ObjectEvidence, samples: int, seed:
     return evidence.pose.apply(np.concatenate([points, extra]))
 
 
+def _centre_depth(intersector, frame, pixels: np.ndarray) -> np.ndarray:  # noqa: ANN001
+    """[K] z-depth of the candidate on the centre rays of ``pixels`` ([K, 2] row, col); inf where a ray misses."""
+    k = frame.intrinsics
+    pose = frame.camera_to_world
+    rows, cols = pixels[:, 0].astype(float), pixels[:, 1].astype(float)
+    d_cam = np.stack([(cols - k[0, 2]) / k[0, 0], (rows - k[1, 2]) / k[1, 1], np.ones(len(rows))], axis=1)
+    directions = d_cam @ pose[:3, :3].T
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    origins = np.broadcast_to(pose[:3, 3], directions.shape)
+    out = np.full(len(pixels), np.inf)
+    if len(pixels) == 0:
+        return out
+    locations, index_ray, _ = intersector.intersects_location(origins, directions, multiple_hits=False)
+    if len(index_ray):
+        out[index_ray] = (locations - pose[:3, 3]) @ pose[:3, 2]
+    return out
+
+
 def observation_energy(candidate: Candidate, evidence: ObjectEvidence, *, samples: int = 20_000,
                        margin: float = 0.03, depth_scale: float = 0.05, max_seen_through: float = 0.05,
                        seed: int = 0) -> ObservationEnergy:  # fmt: skip
     """Score ``candidate`` against every frame of ``evidence`` (see the module docstring)."""
-    from scipy.ndimage import grey_erosion
+    import trimesh
+    from scipy.ndimage import binary_dilation
 
     from holousd.priors._builtin import _project
 
     world = _surface(candidate, evidence, samples, seed)
+    mesh = trimesh.Trimesh(evidence.pose.apply(candidate.mesh.points), candidate.mesh.faces, process=False)
+    intersector = trimesh.ray.ray_triangle.RayMeshIntersector(mesh)
     inter = union = 0
     residual_sum = residual_n = 0.0
     through = visible = 0
     used = 0
     for frame in evidence.frames:
         h, w = frame.labels.shape
-        row, col, z, valid = _project(frame, world)
+        row, col, _, valid = _project(frame, world)
         if not valid.any():
             continue
-        zbuf = np.full(h * w, np.inf)
-        np.minimum.at(zbuf, row[valid] * w + col[valid], z[valid])
-        zbuf = grey_erosion(zbuf.reshape(h, w), size=(3, 3))  # the nearest of the 3x3 block: closes sample gaps
+        near = np.zeros((h, w), bool)
+        near[row[valid], col[valid]] = True
+        near = binary_dilation(near)  # every pixel whose centre ray may meet the candidate
+        pixels = np.argwhere(near)
+        zbuf = np.full((h, w), np.inf)
+        zbuf[pixels[:, 0], pixels[:, 1]] = _centre_depth(intersector, frame, pixels)
         cand = np.isfinite(zbuf)
         mine = frame.labels == evidence.instance_id
         if frame.depth is not None:

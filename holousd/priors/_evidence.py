@@ -68,11 +68,19 @@ def object_evidence(scene: SceneGraph, obs: Observations, name: str, *, max_fram
             neighbours[other] = found
     height = None
     below = neighbours.get(support) if support is not None else None
-    if below is not None:  # the support's highest point under the object's footprint, below its base
-        p = below.points
-        under = np.all((p[:, :2] >= lo[:2]) & (p[:, :2] <= hi[:2]), axis=1) & (p[:, 2] <= world[:, 2].min() + margin)
-        if under.any():
-            height = float(p[under, 2].max())
+    if below is not None and len(below.faces):  # the support's surface under the object: rays cast straight down
+        import trimesh
+        from trimesh.ray.ray_triangle import RayMeshIntersector
+
+        bottom = float(world[:, 2].min())
+        xs, ys = (np.linspace(world[:, a].min(), world[:, a].max(), 7) for a in (0, 1))
+        origins = np.stack([*np.meshgrid(xs, ys, indexing="ij"), np.full((7, 7), bottom + 0.01)], -1).reshape(-1, 3)
+        hits, _, _ = RayMeshIntersector(trimesh.Trimesh(below.points, below.faces, process=False)).intersects_location(
+            origins, np.tile([0.0, 0.0, -1.0], (len(origins), 1)), multiple_hits=False)  # fmt: skip
+        hits = np.asarray(hits, float).reshape(-1, 3)
+        hits = hits[hits[:, 2] <= bottom + margin]
+        if len(hits):
+            height = float(hits[:, 2].max())
     return ObjectEvidence(name=name, instance_id=info.instance_id, pose=pose, mesh=mesh, sdf=sdf, frames=frames,
                           points=np.concatenate(points) if points else np.zeros((0, 3)), support=support,
                           support_height=height, neighbours=neighbours)  # fmt: skip

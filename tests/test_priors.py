@@ -1,0 +1,155 @@
+"""Completion priors: the proposers, their plug-in interface, the learned-prior loading path, and E_obs."""
+
+from __future__ import annotations
+
+from importlib.metadata import EntryPoint
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from holousd._errors import HolousdError
+from holousd.io import load
+from holousd.priors import (
+    ENTRY_POINT_GROUP,
+    Candidate,
+    ObjectEvidence,
+    available_proposers,
+    make_proposer,
+    object_evidence,
+    observation_energy,
+    propose,
+)
+from holousd.synth import SynthConfig, generate_suite
+from holousd.usd import MeshData, Pose, SceneGraph, SdfField
+
+
+@pytest.fixture(scope="module")
+def capture(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("priors")
+    generate_suite("demo", out, SynthConfig(frames=8, width=64, height=64, progress=False))
+    return out / "demo"
+
+
+@pytest.fixture(scope="module")
+def truth(capture: Path) -> SceneGraph:
+    """The ground-truth scene stands in for a perfect fit: its shapes must explain the frames."""
+    return SceneGraph.open(capture / "gt" / "scene.usda")
+
+
+def _watertight(c: Candidate) -> bool:
+    return trimesh.Trimesh(c.mesh.points, c.mesh.faces, process=False).is_watertight
+
+
+def test_observation_energy_accepts_the_truth_and_rejects_matter_where_cameras_saw_through(
+        truth: SceneGraph, capture: Path) -> None:  # fmt: skip
+    obs = load(capture)
+    table = object_evidence(truth, obs, "table_1")
+    assert table.frames and len(table.points) > 50 and table.support == "background"
+    assert table.support_height == pytest.approx(0.0, abs=1e-3)  # the floor under it
+    exact = observation_energy(Candidate(proposer="truth", seed=0, mesh=table.mesh), table)
+    assert exact.mask_iou > 0.9 and exact.depth_residual_m < 0.005 and not exact.rejected, exact
+    moved = Candidate(proposer="moved", seed=0, mesh=MeshData(points=table.mesh.points + [0.08, 0.0, 0.0],
+                                                              faces=table.mesh.faces))  # fmt: skip
+    off = observation_energy(moved, table)
+    assert off.mask_iou < exact.mask_iou and off.energy > exact.energy + 0.2
+    for candidate, energy in propose(table, ["primitive"], k=2):  # a solid block from the floor to the top
+        assert _watertight(candidate) and energy.rejected and energy.seen_through > 0.3, (candidate.note, energy)
+
+
+def test_built_in_proposers_are_watertight_seeded_and_fit_what_they_should(truth: SceneGraph, capture: Path) -> None:
+    obs = load(capture)
+    box = object_evidence(truth, obs, "box_1", stride=1)  # a small object at 64x64: every pixel
+    assert box.support == "table_1" and box.support_height == pytest.approx(box.pose.translation[2], abs=2e-3)
+    names = ["stage1", "extrude", "symmetry", "primitive", "visual_hull"]
+    first = propose(box, names, k=2, seed=3)
+    again = propose(box, names, k=2, seed=3)
+    assert {c.proposer for c, _ in first} == set(names)
+    for (a, ea), (b, eb) in zip(first, again, strict=True):  # the same seed, the same candidates
+        assert a.proposer == b.proposer and a.note == b.note and np.array_equal(a.mesh.points, b.mesh.points)
+        assert ea.energy == eb.energy and _watertight(a), a.note
+    best_primitive = min((e for c, e in first if c.proposer == "primitive"), key=lambda e: e.energy)
+    assert best_primitive.mask_iou > 0.8 and not best_primitive.rejected  # a box is a box
+    floating = ObjectEvidence(name="crate", instance_id=9, pose=Pose(translation=[0.0, 0.0, 0.05]),
+                              mesh=(_box_mesh((0.2, 0.2, 0.1))), sdf=_sdf((0.2, 0.2, 0.1), 0.01),
+                              frames=[], points=np.zeros((0, 3)), support="background", support_height=0.0)  # fmt: skip
+    (down, *_) = make_proposer("extrude").propose(floating, 1, 0)
+    low = floating.pose.apply(down.mesh.points)[:, 2].min()
+    assert abs(low) <= 0.01 and _watertight(down)  # carried down onto the floor, 5 cm below
+    assert down.sdf is not None and down.sdf.grid.min() < 0
+
+
+def _box_mesh(size: tuple[float, float, float]) -> MeshData:
+    t = trimesh.creation.box(extents=size)
+    t.apply_translation([0.0, 0.0, size[2] / 2])
+    return MeshData(points=np.asarray(t.vertices), faces=np.asarray(t.faces))
+
+
+def _sdf(size: tuple[float, float, float], voxel: float) -> SdfField:
+    from holousd.geometry import VoxelGrid, box_sdf
+
+    half = np.array(size) / 2
+    lo, hi = np.array([-half[0], -half[1], 0.0]), np.array([half[0], half[1], size[2]])
+    grid = VoxelGrid.from_bounds(lo, hi, voxel)
+    values = box_sdf(grid.points(), lo, hi).reshape(grid.shape)
+    return SdfField(grid=values, origin=grid.origin, voxel_size=voxel)
+
+
+class TinyProposer:
+    """A plug-in proposer as a third-party package would register it."""
+
+    name = "tiny"
+
+    def __init__(self, scale: float = 1.0) -> None:
+        self.scale = scale
+
+    def propose(self, evidence: ObjectEvidence, k: int, seed: int) -> list[Candidate]:
+        mesh = MeshData(points=evidence.mesh.points * self.scale, faces=evidence.mesh.faces)
+        return [Candidate(proposer=self.name, seed=seed, mesh=mesh, note=f"scaled {self.scale}")][:k]
+
+
+def test_plug_ins_register_under_the_entry_point_group(monkeypatch: pytest.MonkeyPatch) -> None:
+    from holousd.priors import _api
+
+    plugin = EntryPoint(name="tiny", value="tests.test_priors:TinyProposer", group=ENTRY_POINT_GROUP)
+    broken = EntryPoint(name="broken", value="tests.no_such_module:Nothing", group=ENTRY_POINT_GROUP)
+    monkeypatch.setattr(_api, "_entry_points", lambda: {"tiny": plugin, "broken": broken})
+    assert available_proposers()[:5] == ["stage1", "extrude", "symmetry", "primitive", "visual_hull"]
+    assert {"learned", "tiny", "broken"} <= set(available_proposers())
+    proposer = make_proposer("tiny", scale=2.0)
+    evidence = ObjectEvidence(name="b", instance_id=1, pose=Pose(), mesh=(_box_mesh((0.1, 0.1, 0.1))),
+                              sdf=None, frames=[], points=np.zeros((0, 3)))  # fmt: skip
+    (c,) = proposer.propose(evidence, 3, seed=1)
+    assert c.proposer == "tiny" and np.allclose(c.mesh.points, evidence.mesh.points * 2.0)
+    with pytest.raises(HolousdError, match="'broken'.*cannot be loaded"):
+        make_proposer("broken")
+    with pytest.raises(HolousdError, match="none by that name; available: stage1"):
+        make_proposer("nope")
+
+
+def test_a_learned_prior_loads_its_weights_from_the_path_given(tmp_path: Path) -> None:
+    import torch
+
+    class Completer(torch.nn.Module):  # a stand-in for a trained model: grows the stage-1 shape by a voxel
+        def forward(self, x: torch.Tensor) -> torch.Tensor:
+            grown = torch.nn.functional.max_pool3d(x[:, :1], kernel_size=3, stride=1, padding=1)
+            return 20.0 * (grown - 0.5)
+
+    weights = tmp_path / "completer.pt2"
+    dims = {"x": {2: torch.export.Dim("X", min=3), 3: torch.export.Dim("Y", min=3), 4: torch.export.Dim("Z", min=3)}}
+    program = torch.export.export(Completer(), (torch.zeros(1, 2, 8, 9, 10),), dynamic_shapes=dims)
+    torch.export.save(program, str(weights))
+    evidence = ObjectEvidence(name="b", instance_id=1, pose=Pose(), mesh=(_box_mesh((0.2, 0.2, 0.2))),
+                              sdf=_sdf((0.2, 0.2, 0.2), 0.02), frames=[], points=np.zeros((0, 3)))  # fmt: skip
+    candidates = make_proposer("learned", weights=weights).propose(evidence, 2, seed=0)
+    assert [c.proposer for c in candidates] == ["learned", "learned"] and all(map(_watertight, candidates))
+    volume = trimesh.Trimesh(candidates[0].mesh.points, candidates[0].mesh.faces).volume
+    assert 0.2**3 < volume < 0.28**3  # the box grown by about one voxel on every side
+    with pytest.raises(HolousdError, match="no such weights file"):
+        make_proposer("learned", weights=tmp_path / "missing.pt")
+    (tmp_path / "junk.pt").write_bytes(b"not a model")
+    with pytest.raises(HolousdError, match="not a saved model"):
+        make_proposer("learned", weights=tmp_path / "junk.pt")
+    with pytest.raises(HolousdError, match="never downloads"):
+        make_proposer("learned")
