@@ -363,16 +363,18 @@ def _rest(bodies: dict[str, _Body], relations: Relations, room: tuple[np.ndarray
                     if other in out:
                         out[other] = replace(out[other].moved(shift), edits=(*out[other].edits, "shift"))
                 body = out[name]
-        cell = body.sdf.voxel_size if body.sdf is not None else 0.0  # what the fit could not resolve
-        if cell > 0 and float(body.world()[0][:, 2].min()) - base <= min(config.max_extend, cell):
-            # on its support but for a cell or less: feet the fit ended short are carried down onto it
-            extended = _extend_down(body, base - depth, min(config.max_extend, cell))
-            if extended is not None:
-                out[name] = body = extended
-                drop, step = 0.0, 0.0
         if -drop > step:  # the rest is refused: the base is cut less deep (or the object floats)
             body = replace(body, refused=float(-drop - step))
-        body = body.cut(up, base, "cut:base")
+        unextended = body.cut(up, base, "cut:base")
+        body = unextended
+        cell = body.sdf.voxel_size if body.sdf is not None else 0.0  # what the fit could not resolve
+        if cell > 0 and float(out[name].world()[0][:, 2].min()) - base <= min(config.max_extend, cell):
+            # on its support but for a cell or less: feet the fit ended short are carried down onto it
+            extended = _extend_down(replace(out[name], refused=0.0), base - depth, min(config.max_extend, cell))
+            if extended is not None:
+                body = extended.cut(up, base, "cut:base")
+                if not _closed(_drop_degenerate(body.mesh)):  # the base cut left what cannot be mended: as seen
+                    body = unextended
         if support_parts:  # what of the support's collider still lies inside the child
             body = body.minus_convex(support_parts, "cut:parent")
         out[name] = body
@@ -424,7 +426,11 @@ def _extend_down(body: _Body, target: float, reach: float) -> _Body | None:
     united = manifold3d.Manifold.batch_boolean([solid, *solids], manifold3d.OpType.Add)
     if united.is_empty():
         return None
+    import trimesh
+
     points_u, faces_u = without_zero_area_faces(_mesh(united))
+    if not trimesh.Trimesh(points_u, faces_u, process=False).is_watertight:  # slivers it could not mend: as seen
+        return None
     return body.plus_convex(parts, MeshData(points=points_u, faces=faces_u),
                             f"extend:base:{len(solids)}x{100 * longest:.1f}cm")  # fmt: skip
 
@@ -579,6 +585,12 @@ def _around(name: str, bodies: dict[str, _Body], margin: float = 0.01) -> list[t
         else:
             out += [(body.pose.apply(p.points), p.faces) for p in body.collider[1]]
     return out
+
+
+def _closed(mesh: MeshData) -> bool:
+    import trimesh
+
+    return bool(trimesh.Trimesh(mesh.points, mesh.faces, process=False).is_watertight)
 
 
 def _drop_degenerate(mesh: MeshData) -> MeshData:
