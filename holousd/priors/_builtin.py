@@ -296,17 +296,11 @@ class VisualHullProposer:
 
 
 def _project(frame, world: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # noqa: ANN001
-    pose = frame.camera_to_world
-    cam = (world - pose[:3, 3]) @ pose[:3, :3]
-    z = cam[:, 2]
-    k = frame.intrinsics
-    h, w = frame.labels.shape
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inv = 1.0 / np.where(z > 1e-6, z, 1.0)
-        u = np.rint(k[0, 0] * cam[:, 0] * inv + k[0, 2])
-        v = np.rint(k[1, 1] * cam[:, 1] * inv + k[1, 2])
-    valid = (z > 1e-3) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
-    return np.where(valid, v, 0).astype(np.int64), np.where(valid, u, 0).astype(np.int64), z, valid
+    """:meth:`holousd.geometry.Views.project` of ``world`` points into one :class:`FrameEvidence`."""
+    from holousd.geometry._grid import Views
+
+    views = Views(intrinsics=frame.intrinsics[None], poses=frame.camera_to_world[None], labels=frame.labels[None])
+    return views.project(0, np.asarray(world, np.float32))
 
 
 def _load_model(path: Path, device: str):  # noqa: ANN202 - a callable torch module
