@@ -374,6 +374,30 @@ def test_zero_area_faces_go_and_a_closed_mesh_stays_closed() -> None:
     assert merged.is_watertight and merged.volume == pytest.approx(1.0) and len(merged.faces) == 12
 
 
+def test_booleans_keep_double_precision_and_a_failed_mend_falls_back_to_edge_collapse(monkeypatch) -> None:
+    """A table's carried-down legs came out open (3 unpaired edges) after the base cut: manifold3d was fed float32
+    corners, which merged corners 0.1 micron apart into zero-area faces, and the face-by-face mend left a hole."""
+    import holousd.geometry._contact as contact
+
+    points, faces = (np.asarray(v, float) for v in _box((0, 0, 0), (1, 1, 1)))
+    points = points + [1.0, 2.0, 0.5]  # far from the origin, where float32 steps are 1e-7 m
+    points[points[:, 0] > 1.5, 0] += 1e-7  # a box 1.0000001 m wide: float32 cannot hold that corner
+    (kept, _), removed = contact.cut_by_plane((points, faces.astype(np.int64)), np.array([0.0, 0.0, 1.0]), 0.75)
+    assert removed > 0 and kept[:, 0].max() - kept[:, 0].min() == pytest.approx(1.0 + 1e-7, abs=1e-12)
+    # where the face-by-face mend opens a closed mesh, the edge collapse of manifold3d keeps it closed
+    sliver_points, sliver_faces = (np.asarray(v) for v in _box((0, 0, 0), (1, 1, 1)))
+    a, b, x = (int(v) for v in sliver_faces[0])
+    a2 = len(sliver_points)
+    sliver_points = np.vstack([sliver_points, sliver_points[a]])
+    sliver_faces = np.vstack([sliver_faces[1:], [[a2, b, x], [a, a2, x], [b, a2, a]]]).astype(np.int64)
+    monkeypatch.setattr(contact, "_mended", lambda mesh, eps: (mesh[0], mesh[1][:-1]))  # a mend that leaves a hole
+    cleaned = contact.without_zero_area_faces((sliver_points, sliver_faces))
+    fixed = trimesh.Trimesh(*cleaned, process=False)
+    tri = cleaned[0][cleaned[1]]
+    assert fixed.is_watertight and fixed.volume == pytest.approx(1.0)
+    assert np.all(np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1) > 1e-12)
+
+
 def test_collider_reach_is_not_fooled_by_slivers_of_a_boolean_union() -> None:
     from holousd.geometry import convexify, plane_decomposition
 

@@ -34,15 +34,17 @@ def _solid(mesh: Mesh):  # noqa: ANN202 - manifold3d.Manifold | None
     points, faces = mesh
     if len(faces) == 0:
         return None
-    solid = manifold3d.Manifold(manifold3d.Mesh(vert_properties=np.asarray(points, np.float32),
-                                                tri_verts=np.asarray(faces, np.uint32)))  # fmt: skip
+    # double precision: float32 corners of a boolean result a fraction of a micron apart would coincide, and a face
+    # with two coincident corners has no area
+    solid = manifold3d.Manifold(manifold3d.Mesh64(vert_properties=np.array(points, np.float64, order="C"),
+                                                  tri_verts=np.array(faces, np.uint64, order="C")))  # fmt: skip
     if solid.status() != manifold3d.Error.NoError or solid.is_empty():
         return None
     return solid
 
 
 def _mesh(solid) -> Mesh:  # noqa: ANN001
-    out = solid.to_mesh()
+    out = solid.to_mesh64()
     return np.asarray(out.vert_properties[:, :3], np.float64), np.asarray(out.tri_verts, np.int64)
 
 
@@ -291,8 +293,40 @@ def without_zero_area_faces(mesh: Mesh, *, eps: float = 1e-12) -> Mesh:
 
     A face with two coincident corners is collapsed (its corners merged; the faces left with a repeated corner
     go); a face whose corners lie on a line goes, and the neighbour across its long edge is split at the middle
-    corner, which keeps every edge paired. Faces still degenerate after a few rounds are dropped.
+    corner, which keeps every edge paired. Where that leaves a closed mesh open (a collapse next to another
+    short edge), manifold3d's edge collapse at 0.1 micron tolerance is used instead, which keeps it closed.
     """
+    out = _mended(mesh, eps)
+    if _paired(out) or not _paired(mesh):
+        return out
+    solid = _solid(mesh)
+    if solid is None:
+        return out
+    points, faces = _mesh(solid.simplify(1e-7))
+    if _paired((points, faces)) and not np.any(_twice_area(points, faces) < eps):
+        return points, faces
+    return out
+
+
+def _twice_area(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    t = np.asarray(points, np.float64)[np.asarray(faces, np.int64)]
+    return np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
+
+
+def _paired(mesh: Mesh) -> bool:
+    """Every directed edge of the mesh has its reverse exactly once (a closed, consistently oriented surface)."""
+    faces = np.asarray(mesh[1], np.int64)
+    if len(faces) == 0:
+        return False
+    edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    n = int(edges.max()) + 1
+    fwd = np.sort(edges[:, 0] * n + edges[:, 1])
+    if np.any(fwd[1:] == fwd[:-1]):
+        return False
+    return bool(np.array_equal(fwd, np.sort(edges[:, 1] * n + edges[:, 0])))
+
+
+def _mended(mesh: Mesh, eps: float) -> Mesh:
     points = np.asarray(mesh[0], np.float64)
     faces = np.asarray(mesh[1], np.int64).copy()
 

@@ -1,4 +1,5 @@
-"""Sub-commands of the render domain: ``render`` and ``bench-render``."""
+"""Sub-commands of the render domain: ``render`` and ``bench-render``, and ``export --ply`` (the splats in the 3DGS
+layout: the render domain adds the option to the usd domain's ``export``)."""
 
 from __future__ import annotations
 
@@ -49,6 +50,36 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
         "--threads", type=int, default=0, help="torch CPU threads (0: torch's default; 1 is faster on a busy machine)"
     )
     bench.set_defaults(handler=_bench)
+
+    export = subparsers.choices.get("export")
+    if export is not None:  # holousd.usd._cli registered it first
+        export.add_argument("--ply", type=Path, metavar="DIR",
+                            help="also write every node's Gaussian splats as a standard 3DGS .ply (world frame; "
+                            "DIR/<node>.ply, and DIR/scene.ply with all of them) for splat viewers and tools")
+        export.description += (" --ply writes the splats in the layout of the 3D Gaussian Splatting code"
+                               " (positions, SH DC and rest coefficients, opacity before the sigmoid, log scales,"
+                               " rotation w first).")
+        export.set_defaults(handler=_export_with_ply(export.get_default("handler")))
+
+
+def _export_with_ply(usd_export):  # noqa: ANN001, ANN202 - the usd domain's handler; returns the wrapped one
+    def handler(args: argparse.Namespace) -> int:
+        from holousd._errors import HolousdError
+
+        if getattr(args, "ply", None) is None:
+            return usd_export(args)
+        if args.ply.exists() and not args.ply.is_dir():
+            raise HolousdError(f"{args.ply}: --ply takes a folder, and this is a file; give a folder path")
+        from holousd.render._exchange import export_ply
+        from holousd.usd import SceneGraph
+
+        files = export_ply(SceneGraph.open(args.scene), args.ply)  # first: a failing splat export writes nothing
+        print(f"wrote {len(files)} .ply files to {args.ply} ({files[-1].name}: the whole scene)")
+        if args.sim is not None or args.usdz is not None:
+            return usd_export(args)
+        return 0
+
+    return handler
 
 
 def _set_threads(threads: int) -> None:

@@ -150,7 +150,7 @@ def _export(args: argparse.Namespace) -> int:
     from holousd.usd._export import export_sim, export_usdz
 
     if args.sim is None and args.usdz is None:
-        raise HolousdError("nothing to export: give --sim OUT.usda and/or --usdz OUT.usdz")
+        raise HolousdError("nothing to export: give --sim OUT.usda, --usdz OUT.usdz and/or --ply DIR")
     for out in (args.sim, args.usdz):
         if out is not None and out.resolve() == args.scene.resolve():
             raise HolousdError(f"{out}: refusing to overwrite the input scene; choose another output path")

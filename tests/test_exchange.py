@@ -1,0 +1,100 @@
+"""Splat exchange: ``holousd export --ply`` writes the 3DGS layout, read back with an independent reader."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from holousd import Pose, SceneGraph
+from holousd.cli import main
+from holousd.render import sh_to_rgb
+from holousd.render._binding import splats_in_world
+from holousd.render._exchange import rotate_sh
+
+plyfile = pytest.importorskip("plyfile", reason="plyfile (the dev extra) reads the exported .ply files back")
+
+
+def _rgb(sh: np.ndarray, dirs: np.ndarray) -> np.ndarray:
+    import torch
+
+    return sh_to_rgb(torch.tensor(np.asarray(sh, np.float64)), torch.tensor(dirs)).numpy()
+
+
+def _read(path: Path) -> dict[str, np.ndarray]:
+    vertex = plyfile.PlyData.read(str(path))["vertex"]
+    return {name: np.asarray(vertex[name], np.float64) for name in vertex.data.dtype.names}
+
+
+def test_export_ply_round_trips_through_plyfile(example_copy: Path, tmp_path: Path, capsys) -> None:
+    scene = SceneGraph.open(example_copy)
+    scene_file = example_copy.parent / "edit_turn.usda"
+    with scene.edit(scene_file):  # a turned node with view-dependent colour: its splats and SH turn with it
+        turn = Rotation.from_euler("z", 35.0, degrees=True).as_quat()
+        scene.set_pose("mug", Pose(translation=scene.get_pose("mug").translation, orientation=turn))
+        splats = scene.get_gaussians("mug")
+        higher = np.random.default_rng(0).normal(scale=0.1, size=(len(splats), 3, 3))
+        splats.sh_coeffs = np.concatenate([splats.sh_coeffs[:, :1], higher], axis=1).astype(np.float32)
+        scene.set_gaussians("mug", splats)
+    out = tmp_path / "ply"
+    assert main(["export", str(scene_file), "--ply", str(out)]) == 0
+    assert "scene.ply" in capsys.readouterr().out
+    scene = SceneGraph.open(scene_file)
+    names = [n.name for n in scene.nodes() if scene.stage.GetPrimAtPath(n.path).GetChild("Splats")]
+    assert "mug" in names and scene.get_gaussians("mug").sh_degree == 1
+    total = 0
+    for name in names:
+        ply = _read(out / f"{name}.ply")
+        splats = scene.get_gaussians(name)
+        centres, rotations, scales = splats_in_world(splats, scene.get_pose(name), scene.get_mesh(name)
+                                                     if splats.bound else None)  # fmt: skip
+        k = splats.sh_coeffs.shape[1]
+        assert len(ply["x"]) == len(splats) > 0
+        np.testing.assert_allclose(np.stack([ply["x"], ply["y"], ply["z"]], 1), centres, atol=1e-6)
+        np.testing.assert_allclose(1 / (1 + np.exp(-ply["opacity"])), splats.opacities, atol=1e-5)
+        np.testing.assert_allclose(np.exp(np.stack([ply[f"scale_{i}"] for i in range(3)], 1)), scales, rtol=1e-5)
+        wxyz = np.stack([ply[f"rot_{i}"] for i in range(4)], 1)
+        np.testing.assert_allclose(np.linalg.norm(wxyz, axis=1), 1.0, atol=1e-5)
+        read = Rotation.from_quat(np.concatenate([wxyz[:, 1:], wxyz[:, :1]], 1)).as_matrix()
+        np.testing.assert_allclose(read, rotations, atol=1e-5)
+        assert sum(key.startswith("f_rest_") for key in ply) == 3 * (k - 1)
+        # the colour seen along a world direction is the stored colour seen along the object's direction
+        dc = np.stack([ply[f"f_dc_{c}"] for c in range(3)], 1)
+        rest = np.zeros((len(splats), 3, k - 1))  # f_rest_{c (K-1) + j}: coefficient j + 1 of colour c
+        for i in range(3 * (k - 1)):
+            rest[:, i // (k - 1), i % (k - 1)] = ply[f"f_rest_{i}"]
+        world_sh = np.concatenate([dc[:, None, :], np.transpose(rest, (0, 2, 1))], axis=1)
+        dirs = np.random.default_rng(0).normal(size=(len(splats), 3))
+        dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+        rot = scene.get_pose(name).rotation_matrix()
+        np.testing.assert_allclose(_rgb(world_sh, dirs), _rgb(splats.sh_coeffs, dirs @ rot), atol=1e-5)
+        total += len(splats)
+    assert len(_read(out / "scene.ply")["x"]) == total
+    assert not list(out.glob(".*"))  # no temporary file left behind
+
+
+def test_sh_rotation_is_exact_for_every_band() -> None:
+    rng = np.random.default_rng(1)
+    sh = rng.normal(size=(50, 16, 3))
+    rot = Rotation.from_euler("xyz", [20.0, -40.0, 70.0], degrees=True).as_matrix()
+    dirs = rng.normal(size=(50, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    world = _rgb(rotate_sh(sh, rot) * 0.01, dirs)  # small coefficients: the clamp at 0 stays off
+    np.testing.assert_allclose(world, _rgb(sh * 0.01, dirs @ rot), atol=1e-9)
+    back = rotate_sh(rotate_sh(sh, rot), rot.T)
+    np.testing.assert_allclose(back, sh, atol=1e-9)
+    assert not np.allclose(rotate_sh(sh, rot)[:, 1:], sh[:, 1:])  # it did turn
+
+
+def test_export_ply_refuses_a_file_and_a_scene_without_splats(tmp_path: Path, example_copy: Path, capsys) -> None:
+    target = tmp_path / "taken.ply"
+    target.write_text("keep me")
+    assert main(["export", str(example_copy), "--ply", str(target)]) != 0
+    assert "--ply takes a folder" in capsys.readouterr().err and target.read_text() == "keep me"
+    bare = SceneGraph.create(tmp_path / "bare.usda")
+    bare.add_background()
+    bare.save()
+    assert main(["export", str(tmp_path / "bare.usda"), "--ply", str(tmp_path / "out")]) != 0
+    assert "no node has Gaussian splats" in capsys.readouterr().err and not (tmp_path / "out").exists()
