@@ -62,6 +62,23 @@ def test_textured_quad_is_reproduced_on_a_held_out_view(tmp_path: Path) -> None:
     assert reopened.stage.GetRootLayer().subLayerPaths[0].endswith("scene.usda")
     assert len(reopened.get_gaussians("card")) == result.counts["card"]
     assert SceneGraph.open(tmp_path / "scene.usda").stage.GetPrimAtPath("/World/Objects/card/Splats").IsValid() is False
+    # the mesh carries the colour too (displayColor and a UsdPreviewSurface reading it) for tools without splats
+    baked = reopened.get_surface_color("card")
+    from holousd.render._bake import linear_from_srgb
+
+    expected = linear_from_srgb(_texture(None, mesh.points, None))  # the texture at the four corners
+    assert baked is not None and baked.shape == (4, 3)
+    np.testing.assert_allclose(baked, expected, atol=0.12)
+    assert np.ptp(baked, axis=0).max() > 0.1  # not one flat colour
+    from pxr import UsdShade
+
+    geom = reopened.stage.GetPrimAtPath("/World/Objects/card/Geom")
+    material, _ = UsdShade.MaterialBindingAPI(geom).ComputeBoundMaterial()
+    shader = material.ComputeSurfaceSource()[0]
+    assert shader.GetIdAttr().Get() == "UsdPreviewSurface"
+    reader = shader.GetInput("diffuseColor").GetConnectedSources()[0][0].source
+    assert UsdShade.Shader(reader.GetPrim()).GetInput("varname").Get() == "displayColor"
+    assert SceneGraph.open(tmp_path / "scene.usda").get_surface_color("card") is None  # the layer below unchanged
 
 
 def test_stage_run_refines_existing_splats_and_keeps_them_bound(tmp_path: Path) -> None:

@@ -390,6 +390,9 @@ def test_booleans_keep_double_precision_and_a_failed_mend_falls_back_to_edge_col
     a2 = len(sliver_points)
     sliver_points = np.vstack([sliver_points, sliver_points[a]])
     sliver_faces = np.vstack([sliver_faces[1:], [[a2, b, x], [a, a2, x], [b, a2, a]]]).astype(np.int64)
+    # a sliver whose neighbour across its long edge repeats a corner (the hard suite's top_only scene had one)
+    line = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0]])
+    assert len(contact.without_zero_area_faces((line, np.array([[0, 1, 2], [0, 2, 2]])))[1]) == 0
     monkeypatch.setattr(contact, "_mended", lambda mesh, eps: (mesh[0], mesh[1][:-1]))  # a mend that leaves a hole
     cleaned = contact.without_zero_area_faces((sliver_points, sliver_faces))
     fixed = trimesh.Trimesh(*cleaned, process=False)

@@ -361,7 +361,9 @@ def _mended(mesh: Mesh, eps: float) -> Mesh:
             if j is None or j in drop or j == i:
                 continue
             g = [int(v) for v in faces[j]]
-            d = next(v for v in g if v not in (a, c))
+            d = next((v for v in g if v not in (a, c)), None)
+            if d is None:  # the neighbour repeats a corner itself: left to the next round (or the edge collapse)
+                continue
             drop.update((i, j))
             extra += [[c, b, d], [b, a, d]]
         keep = np.array([i not in drop for i in range(len(faces))], bool)

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from holousd._errors import InvalidDataError, SceneError
+from holousd.render._bake import vertex_colors
 from holousd.render._binding import SH_C0, SplatBudget, initial_bound_splats, splat_budget, splats_in_world
 from holousd.render._fit import FitConfig, FitNode, FitResult, colors_from_frames, fit_bound_splats
 from holousd.render._frames import as_frames
@@ -118,8 +119,11 @@ def fit_appearance(scene: SceneGraph, frames: object, config: AppearanceConfig |
     if not layer.is_absolute():
         layer = scene.path.parent / layer
     scene.push_layer(layer, provenance=config.provenance, replace=True)
+    meshes = {n.name: n.mesh for n in fit_nodes if n.trainable}
     for name, splats in result.splats.items():
         scene.set_gaussians(name, splats)
+        if name in meshes and len(meshes[name].points):  # colour on the mesh for tools that read no splats
+            scene.set_surface_color(name, vertex_colors(meshes[name], splats))
     written = scene.save()
     return AppearanceResult(scene=scene, layer=written, fit=result,
                             counts={k: len(v) for k, v in result.splats.items()}, budgets=budgets)  # fmt: skip

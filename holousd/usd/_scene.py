@@ -10,6 +10,7 @@ Layout (ARCHITECTURE.md §1)::
          Collision              Scope of collider meshes Part_000, Part_001, ... (CollisionAPI, MeshCollisionAPI)
          Splats                 reference to a per-object .usdc holding a UsdVol.ParticleField3DGaussianSplat
       /World/Materials          physics materials (UsdShade.Material + UsdPhysics.MaterialAPI)
+      /World/Looks              visual materials (UsdPreviewSurface reading each mesh's primvars:displayColor)
 
 Heavy data (SDF grids, splats) goes to files under ``assets/<layer stem>/`` beside the layer being written, so
 the scene file stays readable and every stage's assets stay on disk.
@@ -63,6 +64,7 @@ PHYSICS_SCENE_PATH = Sdf.Path("/World/PhysicsScene")
 BACKGROUND_PATH = Sdf.Path("/World/Background")
 OBJECTS_PATH = Sdf.Path("/World/Objects")
 MATERIALS_PATH = Sdf.Path("/World/Materials")
+LOOKS_PATH = Sdf.Path("/World/Looks")
 CAMERAS_PATH = Sdf.Path("/World/Cameras")
 BACKGROUND = "background"
 """Node name of the background (the root of the support tree)."""
@@ -663,6 +665,56 @@ class SceneGraph:
             rel.ClearTargets(True)
         self._stamp(prim)
         return target
+
+    def set_surface_color(self, name: str, colors: np.ndarray) -> None:
+        """Colour a node's mesh for tools that do not read Gaussian splats (Blender, usdview, game engines).
+
+        Authors ``primvars:displayColor`` on <node>/Geom, one linear RGB colour per point, and a visual
+        material /World/Looks/<Node> (a UsdPreviewSurface whose diffuse colour reads that primvar, falling back
+        to the mean colour) bound to the Geom for all purposes; the physics material keeps its 'physics' binding.
+
+        Args:
+            name: Node name.
+            colors: [P, 3] linear RGB in [0, 1] for the P points of the node's Geom mesh.
+        """
+        prim = self._prim(name)
+        geom = prim.GetChild("Geom")
+        if not geom or not geom.IsA(UsdGeom.Mesh):
+            raise SceneError(f"{self._where()}: node {name!r} has no Geom mesh to colour; write one with set_mesh()")
+        points = geom.GetAttribute("points").Get()
+        colors = np.asarray(colors, dtype=np.float32)
+        if colors.shape != (len(points or []), 3) or not np.all(np.isfinite(colors)):
+            raise InvalidDataError(f"{self._where()}: {name!r}: colours must be [{len(points or [])}, 3] finite "
+                                   f"values, one per mesh point; got shape {colors.shape}")  # fmt: skip
+        colors = np.clip(colors, 0.0, 1.0)
+        primvar = UsdGeom.PrimvarsAPI(geom).CreatePrimvar("displayColor", Sdf.ValueTypeNames.Color3fArray,
+                                                          UsdGeom.Tokens.vertex)  # fmt: skip
+        primvar.Set(_vec3f_array(colors))
+        node = self.node_name(prim.GetPath())
+        look = LOOKS_PATH.AppendChild("Background" if prim.GetPath() == BACKGROUND_PATH else f"Object_{node}")
+        UsdGeom.Scope.Define(self._stage, LOOKS_PATH)
+        material = UsdShade.Material.Define(self._stage, look)
+        surface = UsdShade.Shader.Define(self._stage, look.AppendChild("Surface"))
+        surface.CreateIdAttr("UsdPreviewSurface")
+        reader = UsdShade.Shader.Define(self._stage, look.AppendChild("DisplayColor"))
+        reader.CreateIdAttr("UsdPrimvarReader_float3")
+        reader.CreateInput("varname", Sdf.ValueTypeNames.Token).Set("displayColor")
+        mean = Gf.Vec3f(*map(float, colors.mean(axis=0))) if len(colors) else Gf.Vec3f(0.5, 0.5, 0.5)
+        reader.CreateInput("fallback", Sdf.ValueTypeNames.Float3).Set(mean)
+        result = reader.CreateOutput("result", Sdf.ValueTypeNames.Float3)
+        surface.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(result)
+        surface.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(0.8)
+        surface.CreateInput("metallic", Sdf.ValueTypeNames.Float).Set(0.0)
+        material.CreateSurfaceOutput().ConnectToSource(surface.ConnectableAPI(), "surface")
+        UsdShade.MaterialBindingAPI.Apply(geom).Bind(material)
+        self._stamp(prim)
+
+    def get_surface_color(self, name: str) -> np.ndarray | None:
+        """[P, 3] linear RGB per point of the node's Geom (``primvars:displayColor``), or None when not coloured."""
+        geom = self._prim(name).GetChild("Geom")
+        primvar = UsdGeom.PrimvarsAPI(geom).GetPrimvar("displayColor") if geom else None
+        value = primvar.Get() if primvar and primvar.HasValue() else None
+        return None if value is None else np.asarray(value, dtype=np.float64).reshape(-1, 3)
 
     def get_gaussians(self, name: str) -> GaussianSplats:
         """Read a node's splats (and their face binding, if any)."""
