@@ -98,3 +98,27 @@ def test_export_ply_refuses_a_file_and_a_scene_without_splats(tmp_path: Path, ex
     bare.save()
     assert main(["export", str(tmp_path / "bare.usda"), "--ply", str(tmp_path / "out")]) != 0
     assert "no node has Gaussian splats" in capsys.readouterr().err and not (tmp_path / "out").exists()
+
+
+def test_export_glb_has_world_meshes_turned_y_up_with_their_colours(example_copy: Path, tmp_path: Path) -> None:
+    import trimesh
+
+    scene = SceneGraph.open(example_copy)
+    edited = example_copy.parent / "edit_colour.usda"
+    with scene.edit(edited):
+        points = scene.get_mesh("book").points
+        red = np.tile([0.8, 0.1, 0.05], (len(points), 1))
+        scene.set_surface_color("book", red)
+    out = tmp_path / "glb"
+    assert main(["export", str(edited), "--glb", str(out)]) == 0
+    scene = SceneGraph.open(edited)
+    meshes = [n.name for n in scene.nodes() if scene.stage.GetPrimAtPath(n.path).GetChild("Geom")]
+    assert sorted(p.stem for p in out.glob("*.glb")) == sorted([*meshes, "scene"])
+    book = trimesh.load(out / "book.glb", force="mesh", process=False)
+    world = scene.get_pose("book").apply(scene.get_mesh("book").points)
+    np.testing.assert_allclose(book.vertices, np.stack([world[:, 0], world[:, 2], -world[:, 1]], 1), atol=1e-5)
+    np.testing.assert_allclose(book.visual.vertex_colors[:, :3] / 255.0, red, atol=1 / 255)
+    mug = trimesh.load(out / "mug.glb", force="mesh", process=False)
+    assert np.all(mug.visual.vertex_colors[:, :3] == 128)  # no colour baked: grey
+    whole = trimesh.load(out / "scene.glb", process=False)
+    assert sorted(whole.geometry) == sorted(meshes)

@@ -75,7 +75,7 @@ def _export_with_ply(usd_export):  # noqa: ANN001, ANN202 - the usd domain's han
 
         files = export_ply(SceneGraph.open(args.scene), args.ply)  # first: a failing splat export writes nothing
         print(f"wrote {len(files)} .ply files to {args.ply} ({files[-1].name}: the whole scene)")
-        if args.sim is not None or args.usdz is not None:
+        if args.sim is not None or args.usdz is not None or args.glb is not None:
             return usd_export(args)
         return 0
 

@@ -39,16 +39,20 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
 
     export = subparsers.add_parser(
         "export",
-        help="write a flattened physics scene for simulators and/or a USDZ package",
+        help="write a physics scene for simulators, a USDZ package, glTF meshes and/or 3DGS .ply splats",
         description="Export a scene. --sim writes one flattened, self-contained physics scene (meshes, "
         "colliders, rigid bodies, materials, relations; no splats, cameras or SDF files) that Newton's "
         "ModelBuilder.add_usd, Isaac Sim and other UsdPhysics readers load; a scene that holousd validate finds "
         "broken for simulation is refused unless --force. --usdz packages the full scene with all its assets. "
+        "--glb writes the coloured meshes as glTF binaries (Y-up) for game engines. "
         "Existing outputs are replaced only once the new file is complete.",
     )
     export.add_argument("scene", type=Path, metavar="SCENE", help="scene file")
     export.add_argument("--sim", type=Path, metavar="OUT.usda", help="flattened physics scene to write")
     export.add_argument("--usdz", type=Path, metavar="OUT.usdz", help="USDZ package of the full scene to write")
+    export.add_argument("--glb", type=Path, metavar="DIR",
+                        help="every node's coloured mesh as glTF binary (DIR/<node>.glb, and DIR/scene.glb with all of "
+                        "them; world frame turned Y-up, metres) for game engines and viewers")  # fmt: skip
     export.add_argument("--force", action="store_true",
                         help="export even when holousd validate finds errors that break simulation (support cycle, "
                         "dangling relation, body without mass or collider)")  # fmt: skip
@@ -147,10 +151,12 @@ def _refuse_broken_physics(stage, scene: Path) -> None:  # noqa: ANN001 - Usd.St
 def _export(args: argparse.Namespace) -> int:
     from holousd._errors import HolousdError
     from holousd._paths import output_file
-    from holousd.usd._export import export_sim, export_usdz
+    from holousd.usd._export import export_glb, export_sim, export_usdz
 
-    if args.sim is None and args.usdz is None:
-        raise HolousdError("nothing to export: give --sim OUT.usda, --usdz OUT.usdz and/or --ply DIR")
+    if args.sim is None and args.usdz is None and args.glb is None:
+        raise HolousdError("nothing to export: give --sim OUT.usda, --usdz OUT.usdz, --glb DIR and/or --ply DIR")
+    if args.glb is not None and args.glb.exists() and not args.glb.is_dir():
+        raise HolousdError(f"{args.glb}: --glb takes a folder, and this is a file; give a folder path")
     for out in (args.sim, args.usdz):
         if out is not None and out.resolve() == args.scene.resolve():
             raise HolousdError(f"{out}: refusing to overwrite the input scene; choose another output path")
@@ -164,4 +170,7 @@ def _export(args: argparse.Namespace) -> int:
         print(f"wrote {export_sim(scene.stage, args.sim)}")
     if args.usdz is not None:
         print(f"wrote {export_usdz(scene.stage, args.usdz)}")
+    if args.glb is not None:
+        files = export_glb(scene, args.glb)
+        print(f"wrote {len(files)} .glb files to {args.glb} ({files[-1].name}: the whole scene)")
     return 0

@@ -1,17 +1,19 @@
-"""Export: a flattened, self-contained physics scene for simulators, and a USDZ package of the full scene."""
+"""Export: a flattened, self-contained physics scene for simulators, a USDZ package of the full scene, and the
+coloured meshes as glTF binaries for game engines and viewers."""
 
 from __future__ import annotations
 
 import os
 from pathlib import Path
 
+import numpy as np
 from pxr import Sdf, Usd, UsdGeom, UsdUtils, UsdVol
 
 from holousd._atomic import atomic_path
 from holousd._errors import SceneError
 from holousd.usd._layers import layer_path, save_layer
 
-__all__ = ["export_sim", "export_usdz"]
+__all__ = ["export_glb", "export_sim", "export_usdz"]
 
 _DROPPED_SCOPES = ("/World/Cameras",)
 
@@ -72,3 +74,50 @@ def export_usdz(stage: Usd.Stage, out: str | os.PathLike[str]) -> Path:
         if not UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(str(root)), str(tmp)):
             raise SceneError(f"{out}: USD could not package {root}; run 'holousd validate' on it first")
     return out
+
+
+_Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+"""USD's Z-up world to glTF's Y-up (+Y up, +Z towards the viewer): x stays, z becomes y, y becomes -z."""
+
+
+def export_glb(scene, out: str | os.PathLike[str]) -> list[Path]:  # noqa: ANN001 - holousd.SceneGraph
+    """Write every node's rendered mesh as ``out/<node>.glb`` and all of them as ``out/scene.glb`` (one named
+    mesh per node): world frame (the node's pose, edit layers included) turned to glTF's Y-up, metres, with the
+    per-vertex colour baked by the appearance stage as COLOR_0 (grey where none was baked). Each file is written
+    whole to a temporary name, then renamed.
+
+    Returns:
+        The files written, the scene's last.
+    """
+    import trimesh
+
+    out = Path(out)
+    meshes: list[tuple[str, trimesh.Trimesh]] = []
+    for node in scene.nodes():
+        try:
+            mesh = scene.get_mesh(node.name)
+        except SceneError:
+            continue
+        if len(mesh.faces) == 0:
+            continue
+        world = scene.get_pose(node.name).apply(np.asarray(mesh.points, np.float64)) @ _Y_UP.T
+        colors = scene.get_surface_color(node.name)
+        rgba = np.full((len(world), 4), 255, np.uint8)
+        rgba[:, :3] = np.round(255 * (np.clip(colors, 0, 1) if colors is not None else 0.5)).astype(np.uint8)
+        meshes.append((node.name, trimesh.Trimesh(world, mesh.faces, vertex_colors=rgba, process=False)))
+    if not meshes:
+        raise SceneError(f"{scene.stage.GetRootLayer().identifier}: no node has a mesh to export; run the fit stage "
+                         "(holousd reconstruct) first")  # fmt: skip
+    if "scene" in {name for name, _ in meshes}:
+        raise SceneError("a node is named 'scene', which would collide with scene.glb; rename it")
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    whole = trimesh.Scene()
+    for name, mesh in meshes:
+        whole.add_geometry(mesh, node_name=name, geom_name=name)
+    for name, content in [*meshes, ("scene", whole)]:
+        target = out / f"{name}.glb"
+        with atomic_path(target) as tmp:
+            Path(tmp).write_bytes(content.export(file_type="glb"))
+        written.append(target)
+    return written
