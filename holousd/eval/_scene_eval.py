@@ -6,6 +6,8 @@ side restricted to the samples some camera saw), ``objects`` = mean over the mat
 against its complete ground-truth surface (so the unseen backs count: this is where completion shows).
 Render: the reconstructed splats rendered at the capture's held-out cameras (frames the pipeline's appearance
 stage did not fit; all frames when none is held out) against the captured images; null when there are no splats.
+``mesh_psnr``: the same frames ray-cast from the meshes in the colour baked onto them (what tools that read no
+splats show, unlit); null when no mesh carries baked colour.
 Physics: OR% (ground-truth objects with a reconstructed mesh), Stable% (stable reconstructed objects matched to a
 ground-truth object / ground-truth objects, :func:`holousd.physics.stability` on the whole reconstructed scene)
 and the summed pairwise intersection volume of the objects' meshes (cm^3).
@@ -187,7 +189,51 @@ def _render_metrics(scene: Any, gt_dir: Path, config: EvalConfig, notes: list[st
         p.append(psnr(image, ref))
         s.append(ssim(image, ref))
     notes.append(f"render: {len(frames)} held-out frames {frames}")
-    return {"psnr": float(np.mean(p)), "ssim": float(np.mean(s))}
+    out: dict[str, float | None] = {"psnr": float(np.mean(p)), "ssim": float(np.mean(s))}
+    out["mesh_psnr"] = _mesh_psnr(scene, obs, frames, notes)
+    return out
+
+
+def _mesh_psnr(scene: Any, obs: Any, frames: list[int], notes: list[str]) -> float | None:
+    """Held-out PSNR of the meshes coloured as other tools show them (the baked ``primvars:displayColor``,
+    interpolated across each triangle, sRGB-encoded; one ray per pixel centre, no lighting); None when no mesh
+    is coloured."""
+    import trimesh
+    from trimesh.ray.ray_triangle import RayMeshIntersector
+
+    from holousd.eval._image import psnr
+    from holousd.render import Camera
+    from holousd.render._raycast import _rays
+
+    points, faces, colours, offset = [], [], [], 0
+    for node in scene.nodes():
+        colour = scene.get_surface_color(node.name)
+        if colour is None:
+            continue
+        mesh = scene.get_mesh(node.name)
+        points.append(scene.get_pose(node.name).apply(mesh.points))
+        faces.append(np.asarray(mesh.faces) + offset)
+        offset += len(mesh.points)
+        colour = np.clip(colour, 0.0, 1.0)
+        colours.append(np.where(colour <= 0.0031308, 12.92 * colour, 1.055 * colour ** (1 / 2.4) - 0.055))
+    if not points:
+        notes.append("render: no mesh carries baked colour (primvars:displayColor); mesh PSNR is null")
+        return None
+    world = trimesh.Trimesh(np.concatenate(points), np.concatenate(faces), process=False)
+    colour = np.concatenate(colours)
+    caster = RayMeshIntersector(world)
+    values = []
+    for i in frames:
+        cam = Camera.from_intrinsics(obs.intrinsics[i], obs.poses[i], obs.width, obs.height)
+        origins, dirs = _rays(cam, 1)
+        triangle, ray, hit = caster.intersects_id(np.ascontiguousarray(origins), dirs, multiple_hits=False,
+                                                  return_locations=True)  # fmt: skip
+        image = np.zeros((len(dirs), 3))
+        weights = trimesh.triangles.points_to_barycentric(world.triangles[triangle], hit)
+        image[ray] = np.einsum("rv,rvc->rc", np.clip(weights, 0, 1), colour[world.faces[triangle]])
+        reference = np.asarray(obs.rgb(i))[..., :3].astype(np.float32) / 255.0
+        values.append(psnr(image.reshape(reference.shape).astype(np.float32), reference))
+    return float(np.mean(values))
 
 
 def _penetration_cm3(world: dict[str, tuple[np.ndarray, np.ndarray]], notes: list[str]) -> float:

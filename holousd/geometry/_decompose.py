@@ -121,7 +121,8 @@ def _offsets(coords: np.ndarray, lo: float, hi: float, offsets: int) -> list[flo
     bins = np.round((coords - lo) / 0.002).astype(np.int64)
     values, counts = np.unique(bins, return_counts=True)
     for b in values[np.argsort(-counts, kind="stable")][:4]:  # just either side: a cut on a face leaves sheets
-        found += [lo + 0.002 * float(b) - 5e-4, lo + 0.002 * float(b) + 5e-4]
+        face = float(np.mean(coords[bins == b]))  # where the face is, not the 2 mm bin's centre; on it too: the
+        found += [face - 5e-4, face, face + 5e-4]  # cut either side of a board's face leaves a sheet of the board
     return found
 
 

@@ -667,6 +667,7 @@ def setup_physics(scene: SceneGraph, config: PhysicsSetupConfig | None = None,
     room = slabs if slabs else ([bg_world] if bg_world is not None and config.background_collider == "mesh" else [])
     results: list[ObjectPhysics] = []
     for name, body in bodies.items():
+        body = replace(body, mesh=_drop_degenerate(body.mesh))  # as authored (float32): no face of zero area
         scene.set_mesh(name, body.mesh)
         if body.edits and body.sdf is not None:
             scene.set_sdf(name, body.sdf)

@@ -593,11 +593,21 @@ def _drop_degenerate(mesh: MeshData) -> MeshData | None:
     """``mesh`` without its zero-area faces (the splat binding rejects them), or None when it has none."""
     from holousd.geometry._contact import without_zero_area_faces
 
-    tri = mesh.points[mesh.faces]  # [F, 3, 3]
-    area2 = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-    if np.all(area2 >= 1e-12):
+    def clean(points: np.ndarray, faces: np.ndarray) -> bool:
+        tri = points[faces]  # [F, 3, 3]
+        return bool(np.all(np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1) >= 1e-12))
+
+    # judged as authored: USD stores points as float32, which merges corners a boolean result left a fraction of a
+    # micron apart (a face of zero area in the file that had some in double precision)
+    points = np.asarray(mesh.points, np.float32).astype(np.float64)
+    faces = np.asarray(mesh.faces, np.int64)
+    if clean(points, faces):
         return None
-    points, faces = without_zero_area_faces((mesh.points, mesh.faces))  # a closed mesh stays closed
+    for _ in range(3):
+        points, faces = without_zero_area_faces((points, faces))  # a closed mesh stays closed
+        points = np.asarray(points, np.float32).astype(np.float64)
+        if clean(points, faces):
+            break
     return MeshData(points=points, faces=faces)
 
 
