@@ -7,7 +7,7 @@ against its complete ground-truth surface (so the unseen backs count: this is wh
 Render: the reconstructed splats rendered at the capture's held-out cameras (frames the pipeline's appearance
 stage did not fit; all frames when none is held out) against the captured images; null when there are no splats.
 ``mesh_psnr``: the same frames ray-cast from the meshes in the colour baked onto them (what tools that read no
-splats show, unlit); null when no mesh carries baked colour.
+splats show, unlit), on every other held-out frame; null when no mesh carries baked colour.
 Physics: OR% (ground-truth objects with a reconstructed mesh), Stable% (stable reconstructed objects matched to a
 ground-truth object / ground-truth objects, :func:`holousd.physics.stability` on the whole reconstructed scene)
 and the summed pairwise intersection volume of the objects' meshes (cm^3).
@@ -196,41 +196,37 @@ def _render_metrics(scene: Any, gt_dir: Path, config: EvalConfig, notes: list[st
 
 def _mesh_psnr(scene: Any, obs: Any, frames: list[int], notes: list[str]) -> float | None:
     """Held-out PSNR of the meshes coloured as other tools show them (the baked ``primvars:displayColor``,
-    interpolated across each triangle, sRGB-encoded; one ray per pixel centre, no lighting); None when no mesh
-    is coloured."""
+    interpolated across each triangle, sRGB-encoded; one ray per pixel centre, no lighting), on every other
+    held-out frame; None when no mesh is coloured."""
     import trimesh
-    from trimesh.ray.ray_triangle import RayMeshIntersector
 
     from holousd.eval._image import psnr
     from holousd.render import Camera
-    from holousd.render._raycast import _rays
+    from holousd.render._raycast import raycast
+    from holousd.usd import MeshData
 
-    points, faces, colours, offset = [], [], [], 0
+    meshes, colours = [], []
     for node in scene.nodes():
         colour = scene.get_surface_color(node.name)
         if colour is None:
             continue
         mesh = scene.get_mesh(node.name)
-        points.append(scene.get_pose(node.name).apply(mesh.points))
-        faces.append(np.asarray(mesh.faces) + offset)
-        offset += len(mesh.points)
+        meshes.append(MeshData(points=scene.get_pose(node.name).apply(mesh.points), faces=mesh.faces))
         colour = np.clip(colour, 0.0, 1.0)
         colours.append(np.where(colour <= 0.0031308, 12.92 * colour, 1.055 * colour ** (1 / 2.4) - 0.055))
-    if not points:
+    if not meshes:
         notes.append("render: no mesh carries baked colour (primvars:displayColor); mesh PSNR is null")
         return None
-    world = trimesh.Trimesh(np.concatenate(points), np.concatenate(faces), process=False)
-    colour = np.concatenate(colours)
-    caster = RayMeshIntersector(world)
     values = []
-    for i in frames:
+    for i in frames[::2]:
         cam = Camera.from_intrinsics(obs.intrinsics[i], obs.poses[i], obs.width, obs.height)
-        origins, dirs = _rays(cam, 1)
-        triangle, ray, hit = caster.intersects_id(np.ascontiguousarray(origins), dirs, multiple_hits=False,
-                                                  return_locations=True)  # fmt: skip
-        image = np.zeros((len(dirs), 3))
-        weights = trimesh.triangles.points_to_barycentric(world.triangles[triangle], hit)
-        image[ray] = np.einsum("rv,rvc->rc", np.clip(weights, 0, 1), colour[world.faces[triangle]])
+        hits = raycast(meshes, cam, chunk=1 << 21)  # bounded memory: at most 2M ray-triangle pairs at once
+        image = np.zeros((len(hits.mesh), 3))
+        for k in np.unique(hits.mesh[hits.mesh >= 0]):
+            hit = np.flatnonzero(hits.mesh == k)
+            faces = np.asarray(meshes[k].faces)[hits.face[hit]]
+            weights = trimesh.triangles.points_to_barycentric(np.asarray(meshes[k].points)[faces], hits.points[hit])
+            image[hit] = np.einsum("rv,rvc->rc", np.clip(weights, 0, 1), colours[k][faces])
         reference = np.asarray(obs.rgb(i))[..., :3].astype(np.float32) / 255.0
         values.append(psnr(image.reshape(reference.shape).astype(np.float32), reference))
     return float(np.mean(values))
