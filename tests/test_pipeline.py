@@ -150,7 +150,8 @@ def test_eval_of_reconstruction_reports_every_key(recon: tuple[Path, _pipeline.P
     for part in ("scene", "objects"):
         assert set(d["geometry"][part]) == {"chamfer_cm", "f1", "nc"}
         assert 0 < d["geometry"][part]["f1"] <= 100 and d["geometry"][part]["chamfer_cm"] > 0
-    assert set(d["render"]) == {"psnr", "ssim"} and np.isfinite(d["render"]["psnr"])
+    assert set(d["render"]) == {"psnr", "ssim", "mesh_psnr"} and np.isfinite(d["render"]["psnr"])
+    assert 10.0 < d["render"]["mesh_psnr"] < 60.0  # the meshes in the colour baked onto them
     assert set(d["physics"]) == {"or_pct", "stable_pct", "penetration_cm3", "solver", "cross_check",
                                  "max_fit_shift_cm", "max_collider_reach_cm", "max_penetration_cm"}  # fmt: skip
     worst = max(o["collider_reach_cm"] for o in d["objects"])  # the rows carry each object's record

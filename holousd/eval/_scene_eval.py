@@ -174,10 +174,10 @@ def _render_metrics(scene: Any, gt_dir: Path, config: EvalConfig, notes: list[st
         renderer = SceneRenderer(scene, background=(0.0, 0.0, 0.0))
     except HolousdError as exc:
         notes.append(f"render: no splats to render ({exc})")
-        return {"psnr": None, "ssim": None}
+        return {"psnr": None, "ssim": None, "mesh_psnr": None}
     if renderer.splat_count == 0:
         notes.append("render: the scene has no Gaussian splats (appearance stage not run); PSNR/SSIM are null")
-        return {"psnr": None, "ssim": None}
+        return {"psnr": None, "ssim": None, "mesh_psnr": None}
     obs = load(gt_dir)
     frames = holdout_frames(len(obs)) or list(range(len(obs)))
     frames = [frames[i] for i in evenly_spaced(len(frames), config.render_frames)]
