@@ -25,11 +25,11 @@ from pathlib import Path
 
 import numpy as np
 
-from holousd._atomic import atomic_path
 from holousd._errors import SceneError
 from holousd.render._binding import splats_in_world
 from holousd.render._scene import _C1, _C2, _C3
 from holousd.usd import GaussianSplats, SceneGraph
+from holousd.usd._export import write_node_files
 
 __all__ = ["PlySplats", "export_ply", "rotate_sh", "sh_basis", "world_splats"]
 
@@ -145,7 +145,6 @@ def export_ply(scene: SceneGraph, out: str | os.PathLike[str], *, time: float | 
     Returns:
         The files written, the scene's last.
     """
-    out = Path(out)
     parts: list[tuple[str, PlySplats]] = []
     for node in scene.nodes():
         try:
@@ -157,13 +156,5 @@ def export_ply(scene: SceneGraph, out: str | os.PathLike[str], *, time: float | 
     if not parts:
         raise SceneError(f"{scene.stage.GetRootLayer().identifier}: no node has Gaussian splats; run the appearance "
                          "stage (holousd reconstruct) before exporting splats")  # fmt: skip
-    if "scene" in {name for name, _ in parts}:
-        raise SceneError("a node is named 'scene', which would collide with scene.ply; rename it")
-    out.mkdir(parents=True, exist_ok=True)
-    written = []
-    for name, splats in [*parts, ("scene", PlySplats.concatenate([p for _, p in parts]))]:
-        target = out / f"{name}.ply"
-        with atomic_path(target) as tmp:
-            Path(tmp).write_bytes(_ply_bytes(splats))
-        written.append(target)
-    return written
+    return write_node_files(out, [(name, _ply_bytes(splats)) for name, splats in parts],
+                            _ply_bytes(PlySplats.concatenate([p for _, p in parts])), ".ply")  # fmt: skip

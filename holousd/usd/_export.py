@@ -13,7 +13,7 @@ from holousd._atomic import atomic_path
 from holousd._errors import SceneError
 from holousd.usd._layers import layer_path, save_layer
 
-__all__ = ["export_glb", "export_sim", "export_usdz"]
+__all__ = ["export_glb", "export_sim", "export_usdz", "write_node_files"]
 
 _DROPPED_SCOPES = ("/World/Cameras",)
 
@@ -91,7 +91,6 @@ def export_glb(scene, out: str | os.PathLike[str]) -> list[Path]:  # noqa: ANN00
     """
     import trimesh
 
-    out = Path(out)
     meshes: list[tuple[str, trimesh.Trimesh]] = []
     for node in scene.nodes():
         try:
@@ -108,16 +107,30 @@ def export_glb(scene, out: str | os.PathLike[str]) -> list[Path]:  # noqa: ANN00
     if not meshes:
         raise SceneError(f"{scene.stage.GetRootLayer().identifier}: no node has a mesh to export; run the fit stage "
                          "(holousd reconstruct) first")  # fmt: skip
-    if "scene" in {name for name, _ in meshes}:
-        raise SceneError("a node is named 'scene', which would collide with scene.glb; rename it")
-    out.mkdir(parents=True, exist_ok=True)
-    written = []
     whole = trimesh.Scene()
     for name, mesh in meshes:
         whole.add_geometry(mesh, node_name=name, geom_name=name)
-    for name, content in [*meshes, ("scene", whole)]:
-        target = out / f"{name}.glb"
+    return write_node_files(out, [(name, mesh.export(file_type="glb")) for name, mesh in meshes],
+                            whole.export(file_type="glb"), ".glb")  # fmt: skip
+
+
+def write_node_files(out: str | os.PathLike[str], nodes: list[tuple[str, bytes]], whole: bytes,
+                     suffix: str) -> list[Path]:  # fmt: skip
+    """Write ``out/<node><suffix>`` for each ``(node, content)`` and ``out/scene<suffix>`` with ``whole``, each
+    whole to a temporary name, then renamed (the layout of the per-node exchange exports). Nothing is written when
+    a node is named 'scene'.
+
+    Returns:
+        The files written, the scene's last.
+    """
+    if "scene" in {name for name, _ in nodes}:
+        raise SceneError(f"a node is named 'scene', which would collide with scene{suffix}; rename it")
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    for name, content in [*nodes, ("scene", whole)]:
+        target = out / f"{name}{suffix}"
         with atomic_path(target) as tmp:
-            Path(tmp).write_bytes(content.export(file_type="glb"))
+            Path(tmp).write_bytes(content)
         written.append(target)
     return written
