@@ -65,7 +65,8 @@ def test_reconstruct_writes_every_stage_layer_with_records(recon: tuple[Path, _p
     assert [s.name for s in result.stages] == list(STAGES)
     scene = SceneGraph.open(out / "scene.usda")
     stack = [Path(layer.identifier).name for layer in scene.stage.GetLayerStack(includeSessionLayers=False)]
-    assert stack == ["scene.usda", "30_appearance.usda", "20_physics.usda", "10_fit.usda", "00_observe.usda"]
+    assert stack == ["scene.usda", "30_appearance.usda", "20_physics.usda", "15_search.usda", "10_fit.usda",
+                     "00_observe.usda"]  # fmt: skip
     for name in STAGES:
         rec = _record(out / _pipeline.LAYERS[name])
         assert rec["name"] == name and rec["wall_s"] >= 0 and rec["peak_mem_mb"] > 0
@@ -95,13 +96,13 @@ def test_resume_skips_unchanged_and_reruns_changed_stages(recon: tuple[Path, _pi
     assert all((out / _pipeline.LAYERS[n]).read_bytes() == before[n] for n in STAGES)
 
     result = reconstruct(capture, out, tiny_config(iterations=4), resume=True, log=lambda _: None)
-    assert [s.skipped for s in result.stages] == [True, True, True, False]
+    assert [s.skipped for s in result.stages] == [True, True, True, True, False]
     assert _record(out / "30_appearance.usda")["config"]["iterations"] == 4
 
     cfg = tiny_config(iterations=4)
     cfg = replace(cfg, physics=replace(cfg.physics, friction=0.6))
     result = reconstruct(capture, out, cfg, resume=True, log=lambda _: None)
-    assert [s.skipped for s in result.stages] == [True, True, False, False]  # the stage above re-runs too
+    assert [s.skipped for s in result.stages] == [True, True, True, False, False]  # the stage above re-runs
     assert SceneGraph.open(out / "scene.usda").get_physics("book_1").static_friction == pytest.approx(0.6)
 
 
@@ -136,7 +137,7 @@ def test_interrupted_stage_leaves_previous_layers_intact(recon: tuple[Path, _pip
     assert not [p for p in out.rglob("*") if ".tmp" in p.name]
     monkeypatch.undo()
     result = reconstruct(capture, out, cfg, resume=True, log=lambda _: None)
-    assert [s.skipped for s in result.stages] == [True, True, False, False]
+    assert [s.skipped for s in result.stages] == [True, True, True, False, False]
 
 
 def test_eval_of_reconstruction_reports_every_key(recon: tuple[Path, _pipeline.PipelineResult], capture: Path,

@@ -34,7 +34,9 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     batch.add_argument("--preset", choices=("fast", "default", "best"), default="default",
                        help="speed / accuracy of every capture")  # fmt: skip
     batch.add_argument("--seed", type=int, default=0, help="seed of every stage")
-    batch.add_argument("--until", choices=("observe", "fit", "physics", "appearance"), default=None,
+    batch.add_argument("--search", choices=("tree", "ground", "none"), default="tree",
+                       help="s2 search mode (default: tree, the full search)")  # fmt: skip
+    batch.add_argument("--until", choices=("observe", "fit", "search", "physics", "appearance"), default=None,
                        help="last stage to run (default: all)")  # fmt: skip
     batch.add_argument("--workers", type=positive_int, default=None,
                        help="local worker processes (default: one per core; ignored with --ray)")  # fmt: skip
@@ -55,7 +57,8 @@ def _batch(args: argparse.Namespace) -> int:
 
     if args.ray is not None:
         _require_ray()
-    config = BatchConfig(pipeline=preset(args.preset, seed=args.seed, progress=False), until=args.until,
+    config = BatchConfig(pipeline=preset(args.preset, seed=args.seed, progress=False, search=args.search),
+                         until=args.until,
                          workers=args.workers, ray=args.ray, num_cpus=args.cpus_per_task,
                          memory_mb=args.memory_per_task, progress=not args.no_progress)  # fmt: skip
     result = run_batch(args.captures, args.out, config)

@@ -36,7 +36,8 @@ class BenchSuiteConfig:
     suite: str = "bench"
     """Synth suite: 'bench', 'hard' or 'demo'."""
     presets: list[str] = field(default_factory=lambda: ["fast", "default"])
-    """Pipeline presets to compare."""
+    """Pipeline presets to compare; ``PRESET@MODE`` runs the preset with that s2 search mode (``none``,
+    ``ground``; plain ``PRESET`` is the full ``tree`` search): the ablation rows."""
     scenes: list[str] | None = None
     """Only these scenes of the suite (None: all)."""
     data: Path | None = None
@@ -288,7 +289,9 @@ def bench_run(data: str, out: str, suite: str, name: str, preset_name: str, seed
 
         torch.set_num_threads(threads)
     scene = Path(data) / name
-    result = reconstruct(scene, Path(out), preset(preset_name, seed=seed, progress=False, threads=threads),
+    base, _, mode = preset_name.partition("@")
+    result = reconstruct(scene, Path(out), preset(base, seed=seed, progress=False, threads=threads,
+                                                  search=mode or None),
                          resume=True, log=log if not quiet else (lambda _: None))  # fmt: skip
     wall = sum(stage.wall_s for stage in result.stages)  # as recorded, also for stages resumed
     evaluation = evaluate_scene(result.scene_file, scene, EvalConfig(samples=samples, log=log))

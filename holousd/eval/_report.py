@@ -44,6 +44,8 @@ class DemoConfig:
     """Image height, pixels."""
     preset: str = "fast"
     """Pipeline preset."""
+    search: str = "tree"
+    """s2 search mode (``tree``, ``ground``, ``none``)."""
     seed: int = 0
     """Seed of generation and reconstruction."""
     threads: int | None = None
@@ -301,7 +303,8 @@ def run_demo(out: str | os.PathLike[str], config: DemoConfig | None = None) -> P
                                              height=config.height, progress=False, overwrite=True))  # fmt: skip
     say(f"reconstructing with the {config.preset} preset -> {out / 'recon'}")
     result = reconstruct(data / "demo", out / "recon",
-                         preset(config.preset, seed=config.seed, progress=True, threads=config.threads),
+                         preset(config.preset, seed=config.seed, progress=True, threads=config.threads,
+                                search=config.search),
                          log=say)  # fmt: skip
     say("evaluating against the ground truth (geometry, held-out renders, stability)")
     evaluation = evaluate_scene(result.scene_file, data / "demo", EvalConfig(samples=config.samples, log=say)).to_dict()

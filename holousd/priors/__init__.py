@@ -58,5 +58,5 @@ def propose(evidence: ObjectEvidence, proposers: list[str | CompletionProposer] 
     for entry in proposers or list(BUILTIN):
         proposer = make_proposer(entry, **(options or {}).get(entry, {})) if isinstance(entry, str) else entry
         for candidate in proposer.propose(evidence, k, seed):
-            out.append((candidate, observation_energy(candidate, evidence, seed=seed)))
+            out.append((candidate, observation_energy(candidate, evidence)))
     return out

@@ -1,8 +1,7 @@
 """E_obs: how well a candidate shape explains an object's observations, re-rendered into every frame.
 
-Each frame is rendered exactly at the pixel centres: the candidate's surface samples (vertices plus ``samples``
-area-weighted points) find the pixels it may cover, and a ray through each of those pixels' centres (and their
-neighbours') gives the candidate's depth there, or a miss (trimesh's ray-triangle queries).
+Each frame is rendered exactly at the pixel centres (:func:`zbuffer`: the candidate's depth where a ray through a
+pixel's centre meets it, or a miss), as a z-buffer over its triangles' projections.
 Per frame, on the pixels not hidden by something observed in front of the candidate (depth smaller than the
 candidate's by more than ``margin``):
 
@@ -24,7 +23,7 @@ import numpy as np
 
 from holousd.priors._api import Candidate, ObjectEvidence
 
-__all__ = ["ObservationEnergy", "observation_energy"]
+__all__ = ["ObservationEnergy", "observation_energy", "zbuffer"]
 
 
 @dataclass(kw_only=True)
@@ -45,62 +44,101 @@ class ObservationEnergy:
     """Frames the candidate was rendered into."""
 
 
-def _surface(candidate: Candidate, evidence: ObjectEvidence, samples: int, seed: int) -> np.ndarray:
-    from holousd.geometry._contact import area_samples
+def _clip_near(tri: np.ndarray, near: float) -> np.ndarray:
+    """Camera-space triangles [F, 3, 3] clipped to z >= ``near``: those wholly behind dropped, those crossing
+    the plane cut there (one corner behind: two triangles; two behind: one)."""
+    behind = tri[:, :, 2] < near
+    count = behind.sum(axis=1)
+    out = [tri[count == 0]]
+    for n_behind in (1, 2):
+        sel = tri[count == n_behind]
+        if len(sel) == 0:
+            continue
+        odd = behind[count == n_behind] if n_behind == 1 else ~behind[count == n_behind]
+        first = np.argmax(odd, axis=1)  # the corner on its own side of the plane comes first
+        order = (first[:, None] + np.arange(3)[None, :]) % 3
+        a, b, c = (np.take_along_axis(sel, order[:, j, None, None].repeat(3, axis=2), axis=1)[:, 0] for j in range(3))
 
-    points = np.asarray(candidate.mesh.points, float)
-    tri = points[np.asarray(candidate.mesh.faces, np.int64)]
-    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-    extra = area_samples(tri, area, samples, np.random.default_rng(seed)) if area.sum() > 0 else np.zeros((0, 3))
-    return evidence.pose.apply(np.concatenate([points, extra]))
+        def cut(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+            t = ((near - p[:, 2]) / (q[:, 2] - p[:, 2]))[:, None]
+            return p + t * (q - p)
+
+        ab, ac = cut(a, b), cut(a, c)
+        if n_behind == 1:  # a behind: the quad ab, b, c, ac
+            out += [np.stack([ab, b, c], axis=1), np.stack([ab, c, ac], axis=1)]
+        else:  # a in front alone
+            out.append(np.stack([a, ab, ac], axis=1))
+    return np.concatenate(out) if out else tri[:0]
 
 
-def _centre_depth(intersector, frame, pixels: np.ndarray) -> np.ndarray:  # noqa: ANN001
-    """[K] z-depth of the candidate on the centre rays of ``pixels`` ([K, 2] row, col); inf where a ray misses."""
-    k = frame.intrinsics
-    pose = frame.camera_to_world
-    rows, cols = pixels[:, 0].astype(float), pixels[:, 1].astype(float)
-    d_cam = np.stack([(cols - k[0, 2]) / k[0, 0], (rows - k[1, 2]) / k[1, 1], np.ones(len(rows))], axis=1)
-    directions = d_cam @ pose[:3, :3].T
-    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
-    origins = np.broadcast_to(pose[:3, 3], directions.shape)
-    out = np.full(len(pixels), np.inf)
-    if len(pixels) == 0:
-        return out
-    locations, index_ray, _ = intersector.intersects_location(origins, directions, multiple_hits=False)
-    if len(index_ray):
-        out[index_ray] = (locations - pose[:3, 3]) @ pose[:3, 2]
-    return out
+def zbuffer(points: np.ndarray, faces: np.ndarray, intrinsics: np.ndarray, camera_to_world: np.ndarray,
+            shape: tuple[int, int], *, near: float = 1e-3, chunk: int = 2_000_000) -> np.ndarray:  # fmt: skip
+    """[H, W] z-depth of a world mesh at every pixel centre (pixel (r, c) is the point u = c, v = r), inf where
+    no triangle covers it: each triangle's projection is tested against the pixel centres in its bounding box
+    (edge functions) and its depth there is the perspective-correct interpolation, exact for a planar triangle,
+    so the result equals a ray cast through each centre. Triangles are clipped at ``near`` in front of the
+    camera (a camera standing over a table sees its top, not the legs behind it through the clipped part). At
+    most ``chunk`` (triangle, pixel) pairs are held at once."""
+    h, w = shape
+    k = np.asarray(intrinsics, float)
+    pose = np.asarray(camera_to_world, float)
+    cam = (np.asarray(points, float) - pose[:3, 3]) @ pose[:3, :3]
+    zbuf = np.full(h * w, np.inf)
+    faces = np.asarray(faces, np.int64)
+    if len(faces) == 0:
+        return zbuf.reshape(h, w)
+    tri = _clip_near(cam[faces], near)  # [F, 3, 3] camera coordinates, every corner at z >= near
+    tz = tri[:, :, 2]
+    tu = k[0, 0] * tri[:, :, 0] / tz + k[0, 2]
+    tv = k[1, 1] * tri[:, :, 1] / tz + k[1, 2]
+    c0 = np.clip(np.ceil(tu.min(1)), 0, w).astype(np.int64)
+    c1 = np.clip(np.floor(tu.max(1)), -1, w - 1).astype(np.int64)
+    r0 = np.clip(np.ceil(tv.min(1)), 0, h).astype(np.int64)
+    r1 = np.clip(np.floor(tv.max(1)), -1, h - 1).astype(np.int64)
+    width, height = np.maximum(c1 - c0 + 1, 0), np.maximum(r1 - r0 + 1, 0)
+    area = (tu[:, 1] - tu[:, 0]) * (tv[:, 2] - tv[:, 0]) - (tu[:, 2] - tu[:, 0]) * (tv[:, 1] - tv[:, 0])
+    count = np.where(np.abs(area) > 1e-12, width * height, 0)
+    keep = np.nonzero(count)[0]
+    cum = np.cumsum(count[keep])
+    start = 0
+    while start < len(keep):
+        done = int(cum[start - 1]) if start else 0
+        stop = max(int(np.searchsorted(cum, done + chunk, side="right")), start + 1)
+        sel, start = keep[start:stop], stop
+        n = count[sel]
+        tri = np.repeat(sel, n)
+        offset = np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n)
+        col = c0[tri] + offset % width[tri]
+        row = r0[tri] + offset // width[tri]
+        pu, pv = col.astype(float), row.astype(float)
+        x, y = tu[tri], tv[tri]
+        e0 = (x[:, 1] - pu) * (y[:, 2] - pv) - (x[:, 2] - pu) * (y[:, 1] - pv)
+        e1 = (x[:, 2] - pu) * (y[:, 0] - pv) - (x[:, 0] - pu) * (y[:, 2] - pv)
+        b0, b1 = e0 / area[tri], e1 / area[tri]
+        b2 = 1.0 - b0 - b1
+        inside = (b0 >= 0) & (b1 >= 0) & (b2 >= 0)
+        if not inside.any():
+            continue
+        zz = tz[tri[inside]]
+        depth = 1.0 / (b0[inside] / zz[:, 0] + b1[inside] / zz[:, 1] + b2[inside] / zz[:, 2])
+        np.minimum.at(zbuf, row[inside] * w + col[inside], depth)
+    return zbuf.reshape(h, w)
 
 
-def observation_energy(candidate: Candidate, evidence: ObjectEvidence, *, samples: int = 20_000,
-                       margin: float = 0.03, depth_scale: float = 0.05, max_seen_through: float = 0.05,
-                       seed: int = 0) -> ObservationEnergy:  # fmt: skip
+def observation_energy(candidate: Candidate, evidence: ObjectEvidence, *, margin: float = 0.03,
+                       depth_scale: float = 0.05, max_seen_through: float = 0.05) -> ObservationEnergy:  # fmt: skip
     """Score ``candidate`` against every frame of ``evidence`` (see the module docstring)."""
-    import trimesh
-    from scipy.ndimage import binary_dilation
-
-    from holousd.priors._builtin import _project
-
-    world = _surface(candidate, evidence, samples, seed)
-    mesh = trimesh.Trimesh(evidence.pose.apply(candidate.mesh.points), candidate.mesh.faces, process=False)
-    intersector = trimesh.ray.ray_triangle.RayMeshIntersector(mesh)
+    world = evidence.pose.apply(candidate.mesh.points)
+    faces = np.asarray(candidate.mesh.faces, np.int64)
     inter = union = 0
     residual_sum = residual_n = 0.0
     through = visible = 0
     used = 0
     for frame in evidence.frames:
-        h, w = frame.labels.shape
-        row, col, _, valid = _project(frame, world)
-        if not valid.any():
-            continue
-        near = np.zeros((h, w), bool)
-        near[row[valid], col[valid]] = True
-        near = binary_dilation(near)  # every pixel whose centre ray may meet the candidate
-        pixels = np.argwhere(near)
-        zbuf = np.full((h, w), np.inf)
-        zbuf[pixels[:, 0], pixels[:, 1]] = _centre_depth(intersector, frame, pixels)
+        zbuf = zbuffer(world, faces, frame.intrinsics, frame.camera_to_world, frame.labels.shape)
         cand = np.isfinite(zbuf)
+        if not cand.any():
+            continue
         mine = frame.labels == evidence.instance_id
         if frame.depth is not None:
             d = frame.depth

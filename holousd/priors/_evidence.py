@@ -21,12 +21,17 @@ def _world(scene: SceneGraph, name: str) -> MeshData | None:
     return MeshData(points=scene.get_pose(name).apply(mesh.points), faces=mesh.faces)
 
 
+_FROM_SCENE = object()
+
+
 def object_evidence(scene: SceneGraph, obs: Observations, name: str, *, max_frames: int | None = 24,
-                    stride: int = 2, margin: float = 0.05) -> ObjectEvidence:  # fmt: skip
+                    stride: int = 2, margin: float = 0.05, support: object = _FROM_SCENE,
+                    placed: dict[str, MeshData] | None = None) -> ObjectEvidence:  # fmt: skip
     """The evidence of object ``name``: the frames whose mask shows it (at most ``max_frames``, evenly spaced),
     its masked depth back-projected every ``stride`` pixels, its stage-1 mesh and SDF, its support (from the
-    scene's relations when it has them) and the height of the support's surface under it, and the meshes of the
-    support and of every object within ``margin`` metres of it."""
+    scene's relations when it has them, or ``support``) and the height of the support's surface under it, and
+    the meshes of the support and of every object within ``margin`` metres of it (world meshes in ``placed``
+    replace the scene's: the shapes a search has already chosen)."""
     info = scene.node_info(name)
     mesh = scene.get_mesh(name)
     try:
@@ -55,12 +60,12 @@ def object_evidence(scene: SceneGraph, obs: Observations, name: str, *, max_fram
             points.append(cam @ frame.camera_to_world[:3, :3].T + frame.camera_to_world[:3, 3])
     world = pose.apply(mesh.points)
     lo, hi = world.min(0) - margin, world.max(0) + margin
-    support = scene.get_support(name)
+    support = scene.get_support(name) if support is _FROM_SCENE else support
     neighbours: dict[str, MeshData] = {}
     for other in [BACKGROUND, *scene.objects()]:
         if other == name:
             continue
-        found = _world(scene, other)
+        found = (placed or {}).get(other) or _world(scene, other)
         if found is None or len(found.points) == 0:
             continue
         near = np.all(found.points.max(0) >= lo) and np.all(found.points.min(0) <= hi)

@@ -560,6 +560,8 @@ def _shaped(body: _Body, config: PhysicsSetupConfig,
     if united is None:
         return replace(body, collider=(kind, parts, reach))
     united = without_zero_area_faces(united)  # a boolean union leaves slivers; the splat binding rejects them
+    if not _closed(_drop_degenerate(MeshData(points=united[0], faces=united[1]))):  # as it would be authored
+        return replace(body, collider=(kind, parts, reach))  # the union came out open: the mesh stays as seen
     if _intrusion(united, body.mesh, local) > 1e-8:  # the parts could not all keep out: the mesh stays as seen
         return replace(body, collider=(kind, parts, reach))
     grown = body.plus_convex([(p.points, p.faces) for p in parts], MeshData(points=united[0], faces=united[1]),

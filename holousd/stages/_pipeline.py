@@ -1,6 +1,6 @@
-"""The reconstruction pipeline: s0 observe -> s1 fit -> physics set-up -> appearance -> ``scene.usda``.
+"""The reconstruction pipeline: s0 observe -> s1 fit -> s2 search -> physics set-up -> appearance -> ``scene.usda``.
 
-Each stage pushes its own layer over the previous one (``00_observe.usda``, ``10_fit.usda``,
+Each stage pushes its own layer over the previous one (``00_observe.usda``, ``10_fit.usda``, ``15_search.usda``,
 ``20_physics.usda``, ``30_appearance.usda``) and the pipeline then records in that layer's customLayerData, under
 ``holousd: {stage: {...}}``, the stage name, wall time, peak memory (``ru_maxrss``), its config (as a dict and
 as JSON), the input hash and a run id. ``out/scene.usda`` sublayers the last stage layer, and so every stage.
@@ -42,7 +42,7 @@ from holousd._errors import HolousdError
 from holousd._paths import output_folder
 from holousd._sampling import evenly_spaced
 from holousd._torch_threads import torch_threads
-from holousd.stages import _fit, _observe
+from holousd.stages import _fit, _observe, _search
 from holousd.stages import _physics_setup as _physics
 from holousd.stages._appearance import AppearanceConfig
 from holousd.usd._scene import SceneGraph
@@ -66,11 +66,12 @@ __all__ = [
     "reconstruct",
 ]
 
-STAGES = ("observe", "fit", "physics", "appearance")
+STAGES = ("observe", "fit", "search", "physics", "appearance")
 """Stage names in pipeline order (``--until`` takes one of them)."""
 LAYERS = {
     "observe": _observe.OBSERVE_LAYER,
     "fit": _fit.FIT_LAYER,
+    "search": _search.SEARCH_LAYER,
     "physics": _physics.PHYSICS_LAYER,
     "appearance": "30_appearance.usda",
 }
@@ -120,6 +121,8 @@ class PipelineConfig:
     """s0_observe settings."""
     fit: _fit.FitConfig = field(default_factory=lambda: _fit.DEFAULT)
     """s1_fit geometry settings."""
+    search: _search.SearchConfig = field(default_factory=_search.SearchConfig)
+    """s2 search settings (completion candidates and the tree search; ``mode`` is the ablation)."""
     physics: _physics.PhysicsSetupConfig = field(default_factory=_physics.PhysicsSetupConfig)
     """Physics set-up settings."""
     appearance: AppearanceStageConfig = field(default_factory=AppearanceStageConfig)
@@ -142,15 +145,20 @@ PRESETS: dict[str, PipelineConfig] = {
 """Named pipeline presets: ``fast`` (about a minute for the demo scene on 2 cores), ``default``, ``best``."""
 
 
-def preset(name: str, *, seed: int = 0, progress: bool = True, threads: int | None = None) -> PipelineConfig:
-    """A copy of the named preset with the seed (fit, physics, appearance), progress and torch thread settings
-    (fit and appearance) applied."""
+def preset(name: str, *, seed: int = 0, progress: bool = True, threads: int | None = None,
+           search: str | None = None) -> PipelineConfig:  # fmt: skip
+    """A copy of the named preset with the seed (fit, search, physics, appearance), progress and torch thread
+    settings (fit and appearance) and the search mode (``none``, ``ground``, ``tree``; None keeps the preset's)
+    applied."""
     if name not in PRESETS:
         raise HolousdError(f"unknown preset {name!r}; choose one of {', '.join(PRESETS)}")
+    if search is not None and search not in _search.MODES:
+        raise HolousdError(f"unknown search mode {search!r}; choose one of {', '.join(_search.MODES)}")
     base = PRESETS[name]
     return replace(
         base,
         fit=replace(base.fit, seed=seed, progress=progress, threads=threads),
+        search=replace(base.search, seed=seed, progress=progress, mode=search or base.search.mode),
         physics=replace(base.physics, seed=seed),
         appearance=replace(base.appearance, seed=seed, progress=progress, threads=threads),
     )
@@ -391,7 +399,8 @@ def checked(obs: Any, log: Callable[[str], None]) -> Any:
 
 
 def _stage_configs(config: PipelineConfig) -> dict[str, Any]:
-    return {"observe": config.observe, "fit": config.fit, "physics": config.physics, "appearance": config.appearance}
+    return {"observe": config.observe, "fit": config.fit, "search": config.search, "physics": config.physics,
+            "appearance": config.appearance}  # fmt: skip
 
 
 def _plan(out: Path, stages: list[str], configs: dict[str, Any], manifest: str,
@@ -437,6 +446,8 @@ def _run_stages(plan: list[tuple[str, str, bool, dict[str, Any] | None]], obs: A
             scene = _observe.run(obs, out, config.observe)
         elif name == "fit":
             scene = _fit.run(scene, obs, config.fit)
+        elif name == "search":
+            scene = _search.run(scene, obs, config.search, log=log)
         elif name == "physics":
             scene = _physics.run(scene, config.physics)
         else:

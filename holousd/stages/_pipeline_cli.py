@@ -13,6 +13,8 @@ __all__ = ["add_commands"]
 _RECONSTRUCT_EPILOG = """stages (layers in DIR):
   observe     00_observe.usda     cameras, image references, one node per instance id
   fit         10_fit.usda         per-object SDF grids and watertight meshes
+  search      15_search.usda      completion candidates per object, the lowest-energy one kept along the
+                                  support tree (--search tree|ground|none)
   physics     20_physics.usda     support tree, beside pairs, settling, colliders, mass, friction 0.5
   appearance  30_appearance.usda  Gaussian splats fitted on the meshes (every 8th frame held out)
 DIR/scene.usda sublayers the last stage's layer. Each layer records its wall time, peak memory, config and input
@@ -25,7 +27,7 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
 
     rec = subparsers.add_parser(
         "reconstruct",
-        help="capture -> simulation-ready USD scene (observe, fit, physics set-up, appearance)",
+        help="capture -> simulation-ready USD scene (observe, fit, search, physics set-up, appearance)",
         description="Run the whole pipeline on a capture with instance masks and write DIR/scene.usda.",
         epilog=_RECONSTRUCT_EPILOG,
     )
@@ -35,6 +37,10 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     rec.add_argument("--until", choices=STAGES, default=None, help="last stage to run (default: all)")
     rec.add_argument("--resume", action="store_true", help="skip stages whose layer is up to date")
     rec.add_argument("--seed", type=int, default=0, help="seed of every stage")
+    rec.add_argument("--search", choices=("tree", "ground", "none"), default="tree",
+                     help="s2 search: 'tree' (completion candidates chosen along the support tree, the "
+                     "method), 'ground' (each object against the room only), 'none' (the fitted shapes); "
+                     "default tree")  # fmt: skip
     rec.add_argument("--threads", type=positive_int, default=None, help="torch CPU threads (default: torch's)")
     rec.add_argument("--no-appearance", action="store_true", help="skip the appearance stage")
     rec.add_argument("--no-progress", action="store_true", help="no progress bars on stderr")
@@ -67,6 +73,9 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     bench.add_argument("--table", type=Path, nargs="+", default=None, metavar="JSON",
                        help="print the markdown summary of these bench.json files and exit")  # fmt: skip
     bench.add_argument("--scenes", default=None, metavar="A,B", help="only these scenes of the suite")
+    bench.add_argument("--search", default="tree", metavar="MODES",
+                       help="comma-separated s2 search modes run with every preset (tree, ground, none): the "
+                       "ablation rows; a mode other than tree is labelled PRESET@MODE (default: tree)")  # fmt: skip
     bench.add_argument("--data", type=Path, default=None, metavar="DIR",
                        help="existing synth output of the suite (default: generate into OUT/data)")  # fmt: skip
     bench.add_argument("--frames", type=positive_int, default=60, help="frames per generated scene")
@@ -90,6 +99,7 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     demo.add_argument("--preset", choices=("fast", "default", "best"), default="fast", help="reconstruction preset")
     demo.add_argument("--seed", type=int, default=0, help="seed of generation and reconstruction")
     demo.add_argument("--threads", type=positive_int, default=None, help="torch CPU threads (default: torch's)")
+    demo.add_argument("--search", choices=("tree", "ground", "none"), default="tree", help="s2 search mode")
     demo.set_defaults(handler=_demo)
 
 
@@ -98,7 +108,8 @@ def _reconstruct(args: argparse.Namespace) -> int:
 
     from holousd.stages._pipeline import preset, reconstruct
 
-    config = preset(args.preset, seed=args.seed, progress=not args.no_progress, threads=args.threads)
+    config = preset(args.preset, seed=args.seed, progress=not args.no_progress, threads=args.threads,
+                    search=args.search)  # fmt: skip
     if args.no_appearance:
         config = replace(config, appearance=replace(config.appearance, enabled=False))
     result = reconstruct(args.input, args.out, config, until=args.until, resume=args.resume)
@@ -171,7 +182,14 @@ def _bench(args: argparse.Namespace) -> int:
         return 0
     if args.out is None:
         raise HolousdError("--out DIR is required (or --table FILE to summarise existing results)")
-    presets = [p.strip() for p in args.presets.split(",") if p.strip()]
+    from holousd.stages._search import MODES
+
+    modes = [m.strip() for m in args.search.split(",") if m.strip()]
+    bad = [m for m in modes if m not in MODES]
+    if bad or not modes:
+        raise HolousdError(f"--search {args.search!r}: choose among {', '.join(MODES)} (comma-separated)")
+    presets = [p if m == "tree" else f"{p}@{m}" for p in (p.strip() for p in args.presets.split(",") if p.strip())
+               for m in modes]  # fmt: skip
     scenes = [s.strip() for s in args.scenes.split(",")] if args.scenes else None
     config = BenchSuiteConfig(suite=args.suite, presets=presets, scenes=scenes, data=args.data, frames=args.frames,
                               width=args.resolution[0], height=args.resolution[1], seed=args.seed,
@@ -190,7 +208,7 @@ def _demo(args: argparse.Namespace) -> int:
     from holousd.eval._report import DemoConfig, run_demo
 
     config = DemoConfig(frames=args.frames, width=args.resolution[0], height=args.resolution[1], preset=args.preset,
-                        seed=args.seed, threads=args.threads)  # fmt: skip
+                        seed=args.seed, threads=args.threads, search=args.search)  # fmt: skip
     report = run_demo(args.out, config)
     print(f"demo report: {report}", file=sys.stdout)
     return 0

@@ -65,11 +65,29 @@ def _open(path: Path):  # noqa: ANN202 - returns holousd.SceneGraph, imported la
     return SceneGraph.open(path)
 
 
+def _search_lines(energies: dict) -> list[str]:  # name -> Energies
+    """One line per object the s2 search scored: the chosen candidate beside the runner-up."""
+    lines = []
+    for name, e in energies.items():
+        if e.candidate < 0 or e.candidate >= len(e.candidates):
+            continue
+        others = [(t, c) for i, (t, c) in enumerate(zip(e.totals, e.candidates, strict=False)) if i != e.candidate]
+        live = [(t, c) for t, c in others if t == t and t != float("inf")]
+        runner = f"{min(live)[1]} {min(live)[0]:.2f}" if live else "none left (the others rejected by E_obs)"
+        lines.append(f"  {name}: {e.candidates[e.candidate]} total {e.total:.2f} (E_obs {e.observation:.2f}, "
+                     f"E_stable {e.stable:.2f}, touch {100 * e.touch:.1f} cm, pene {1e6 * e.penetration:.1f} cm^3)"
+                     f"; runner-up {runner}; {len(e.candidates)} candidates")  # fmt: skip
+    return lines
+
+
 def _info(args: argparse.Namespace) -> int:
-    summary = _open(args.scene).summary()
+    scene = _open(args.scene)
+    summary = scene.summary()
+    energies = {n.name: e for n in summary.nodes if (e := scene.get_energies(n.name)) is not None}
     if args.json:
         data = asdict(summary)
         data["total_splats"] = summary.total_splats
+        data["search"] = {name: asdict(e) for name, e in energies.items()}
         emit_json(args, data)
         return 0
     print(f"scene: {summary.path}")
@@ -101,6 +119,11 @@ def _info(args: argparse.Namespace) -> int:
     for row in rows:
         print("  ".join(cell.ljust(w) for cell, w in zip(row, widths, strict=True)).rstrip())
     print(f"{len(summary.nodes)} nodes, {summary.total_splats} splats")
+    lines = _search_lines(energies)
+    if lines:
+        solver = next(iter(energies.values())).solver or "unrecorded"
+        print(f"s2 search (chosen candidate, lowest total wins; E_stable measured {solver}):")
+        print("\n".join(lines))
     unset = [n.name for n in summary.nodes if n.dynamic and n.mass_kg is None]
     if unset:
         print(f"warning: {', '.join(unset)}: rigid body without an authored mass (a simulator then guesses one from "

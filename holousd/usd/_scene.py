@@ -979,6 +979,11 @@ class SceneGraph:
         prim.GetAttribute("holo:energy:touch").Set(float(energies.touch))
         prim.GetAttribute("holo:energy:penetration").Set(float(energies.penetration))
         prim.GetAttribute("holo:energy:candidate").Set(int(energies.candidate))
+        prim.GetAttribute("holo:energy:observation").Set(float(energies.observation))
+        prim.GetAttribute("holo:energy:total").Set(float(energies.total))
+        prim.GetAttribute("holo:energy:candidates").Set(Vt.StringArray(list(energies.candidates)))
+        prim.GetAttribute("holo:energy:totals").Set(Vt.FloatArray([float(v) for v in energies.totals]))
+        prim.GetAttribute("holo:energy:solver").Set(str(energies.solver))
         self._stamp(prim)
 
     def get_energies(self, name: str) -> Energies | None:
@@ -991,6 +996,11 @@ class SceneGraph:
             touch=float(prim.GetAttribute("holo:energy:touch").Get()),
             penetration=float(prim.GetAttribute("holo:energy:penetration").Get()),
             candidate=int(prim.GetAttribute("holo:energy:candidate").Get()),
+            observation=float(prim.GetAttribute("holo:energy:observation").Get()),
+            total=float(prim.GetAttribute("holo:energy:total").Get()),
+            candidates=list(prim.GetAttribute("holo:energy:candidates").Get() or []),
+            totals=[float(v) for v in (prim.GetAttribute("holo:energy:totals").Get() or [])],
+            solver=str(prim.GetAttribute("holo:energy:solver").Get()),
         )
 
     # ------------------------------------------------------------------ cameras

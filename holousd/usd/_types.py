@@ -278,13 +278,24 @@ class Energies:
     """Energies the physics search measured for a node (HoloEnergyAPI)."""
 
     stable: float
-    """E_stable: translation (m) + rotation (rad) deviation after simulating gravity."""
+    """E_stable: 0 when the object stands in the search's check, else 1 + its centre of mass's distance outside
+    its support polygon in cm (``solver`` says how it was measured)."""
     touch: float
     """E_touch: distance to the support parent's surface, metres."""
     penetration: float
     """E_pene: intersection volume with other nodes, m^3."""
     candidate: int = -1
-    """Index of the chosen completion candidate (-1 = none)."""
+    """Index of the chosen completion candidate in ``candidates`` (-1 = none)."""
+    observation: float = 0.0
+    """E_obs of the chosen candidate ((1 - mask IoU) + depth residual / 5 cm + seen-through fraction)."""
+    total: float = 0.0
+    """Weighted total of the chosen candidate (lower is better)."""
+    candidates: list[str] = field(default_factory=list)
+    """Candidates tried, ``'proposer#seed'``, in proposal order."""
+    totals: list[float] = field(default_factory=list)
+    """Weighted total of each candidate (inf: rejected by E_obs)."""
+    solver: str = ""
+    """How E_stable was measured."""
 
 
 @dataclass(kw_only=True, frozen=True)

@@ -1,0 +1,354 @@
+"""s2 search: completion candidates for every object and the physics tree search along the support tree
+(layer ``15_search.usda``, between the fit and the physics set-up).
+
+For each object the completion proposers (:mod:`holousd.priors`: the stage-1 shape, support extrusion,
+reflective symmetry, primitive fits, the visual hull, plug-ins and a learned prior from a weights path) give
+candidate shapes of the whole object, the unseen sides included. Each candidate is scored by
+
+- ``E_obs``: re-rendered into the frames that see the object, (1 - mask IoU) + depth residual / 5 cm +
+  seen-through fraction; a candidate that puts matter where a camera saw through to what lies behind is
+  rejected (:func:`holousd.priors.observation_energy`);
+- ``E_stable``: the candidate on the shapes already chosen for its support chain, checked quasi-statically
+  (:func:`holousd.physics.static_stability`: centre of mass over the support polygon, slope within friction):
+  0 when it stands, else 1 + the distance outside in cm. A simulated check per candidate (Newton, 2 s of
+  gravity) costs about a second on a CPU against a millisecond here; the scene's verdict stays the simulated
+  protocol, and the closing report gives the agreement between the two;
+- ``E_touch``: the gap (or sinking) between its base and its support's surface, cm;
+- ``E_pene``: its intersection volume with its support and with the neighbours already placed, cm^3
+  (manifold3d).
+
+``total = w_obs E_obs + w_stable E_stable + w_touch E_touch + w_pene E_pene`` (:class:`SearchConfig`: weights
+with their units and rationale); the lowest total that E_obs does not reject wins (the stage-1 shape when all
+are rejected: the fit is what the observations support).
+
+Modes (``mode``; the ablation rows of ``holousd bench --search``):
+
+- ``tree``: breadth-first from the room along the support tree (:func:`holousd.graph.infer_relations` on the
+  fitted meshes); each object is scored on its parent's chosen shape and among the neighbours already placed.
+  When no candidate of a child stands, the parent's other candidates are tried in order of their own total;
+  the first under which a child candidate stands and every child already placed on the parent still stands
+  replaces the parent's choice.
+- ``ground``: each object checked against the room only (the PhyRecon-like row): objects on the room are scored
+  with every term against the floor; objects resting on other objects get E_obs alone (the room is all this
+  mode knows of physics).
+- ``none``: the stage-1 shapes are kept (the ObjectSDF++-like row); the layer records the mode and nothing else.
+
+The chosen candidate's mesh and SDF replace the fitted ones in the layer (the physics set-up then sets every
+object on its support and derives its collider from that mesh). Every object records, in ``HoloEnergyAPI``, the
+candidates tried (proposer and seed), each one's total and the chosen candidate's energies; the stage's wall time
+is in the layer's stage record (a per-object time in the prims would make the same seed give different layers),
+and ``progress`` prints each object's.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from holousd._errors import HolousdError
+from holousd.usd._scene import BACKGROUND, SceneGraph
+from holousd.usd._types import Energies, MeshData
+
+__all__ = ["MODES", "SEARCH_LAYER", "CandidateScore", "ObjectChoice", "SearchConfig", "SearchResult", "run",
+           "search"]  # fmt: skip
+
+SEARCH_LAYER = "15_search.usda"
+"""File name of the layer this stage writes."""
+MODES = ("none", "ground", "tree")
+"""Search modes: stage-1 shapes, each object against the room only, the full tree search."""
+SOLVER = "quasi-static"
+"""How the search's E_stable is measured (recorded in ``holo:energy:solver``)."""
+
+
+@dataclass(kw_only=True)
+class SearchConfig:
+    """Settings of the search stage."""
+
+    mode: str = "tree"
+    """``tree`` (the method), ``ground`` (each object against the room only) or ``none`` (stage-1 shapes)."""
+    proposers: tuple[str, ...] = ("stage1", "extrude", "symmetry", "primitive", "visual_hull")
+    """Completion proposers, by name (built-in or a ``holousd.completion`` plug-in)."""
+    proposer_options: dict[str, dict] = field(default_factory=dict)
+    """Keyword arguments per proposer (``{"learned": {"weights": "/path/model.pt2"}}``)."""
+    k: int = 2
+    """Candidates per proposer at most."""
+    seed: int = 0
+    """Seed of every proposer and of the energies' surface samples."""
+    max_frames: int = 24
+    """Frames per object that E_obs re-renders into (evenly spaced over those that see it)."""
+    w_obs: float = 1.0
+    """Weight of E_obs (dimensionless): the unit of the total; one point of IoU lost costs 0.01."""
+    w_stable: float = 2.0
+    """Weight of E_stable (1 + cm outside the support polygon): a candidate that falls costs more than any
+    observation term a plausible candidate has (E_obs of a fitted shape is about 0.2-0.6)."""
+    w_touch: float = 0.1
+    """Weight per cm of gap or sinking between base and support: the physics set-up closes up to a few cm by
+    moving or cutting, so a gap only breaks ties."""
+    w_pene: float = 0.02
+    """Weight per cm^3 of intersection with the support and placed neighbours: 50 cm^3 (a mug's base 1 cm deep
+    in a tray) weighs as much as the whole observation term."""
+    revisit: bool = True
+    """``tree``: try the parent's other candidates when none of a child's stands."""
+    friction: float = 0.5
+    """Friction coefficient of the quasi-static check (the stability protocol's)."""
+    provenance: str = "s2_search"
+    """Writer name recorded on the nodes the stage changes."""
+    progress: bool = False
+    """Print one line per object on stderr (does not change the result)."""
+
+
+@dataclass(kw_only=True)
+class CandidateScore:
+    """One candidate and its energies."""
+
+    proposer: str
+    seed: int
+    note: str
+    observation: float
+    """E_obs."""
+    rejected: bool
+    """E_obs rejected it (matter where a camera saw through)."""
+    stable: float
+    """E_stable (0: stands)."""
+    touch_cm: float
+    """|gap| between its base and the support, cm."""
+    pene_cm3: float
+    """Intersection volume with the support and placed neighbours, cm^3."""
+    total: float
+    """Weighted total (inf when rejected)."""
+
+    @property
+    def label(self) -> str:
+        return f"{self.proposer}#{self.seed}"
+
+
+@dataclass(kw_only=True)
+class ObjectChoice:
+    """What the search chose for one object."""
+
+    name: str
+    parent: str
+    scores: list[CandidateScore]
+    chosen: int
+    """Index into ``scores``."""
+    wall_s: float
+    revisited: bool = False
+    """The choice was changed when one of its children had no candidate that stands."""
+
+    @property
+    def best(self) -> CandidateScore:
+        return self.scores[self.chosen]
+
+    def runner_up(self) -> CandidateScore | None:
+        """The lowest-total candidate other than the chosen one (None when there is none)."""
+        others = [s for i, s in enumerate(self.scores) if i != self.chosen]
+        return min(others, key=lambda s: s.total) if others else None
+
+
+@dataclass(kw_only=True)
+class SearchResult:
+    """What :func:`search` did."""
+
+    scene: SceneGraph
+    mode: str
+    choices: list[ObjectChoice]
+    wall_s: float
+
+
+def _world(pose, mesh: MeshData) -> MeshData:  # noqa: ANN001
+    return MeshData(points=pose.apply(mesh.points), faces=mesh.faces)
+
+
+def _order(support: dict[str, str]) -> list[str]:
+    """Objects breadth-first from the room along the support tree (siblings by name)."""
+    order, frontier = [], [BACKGROUND]
+    while frontier:
+        nxt = []
+        for parent in frontier:
+            kids = sorted(k for k, v in support.items() if v == parent)
+            order += kids
+            nxt += kids
+        frontier = nxt
+    return order + sorted(k for k in support if k not in order)  # a cycle cannot happen; kept for safety
+
+
+class _Scorer:
+    def __init__(self, config: SearchConfig, floor: float | None) -> None:
+        self.config = config
+        self.floor = floor
+
+    def physics(self, world: MeshData, parent: str, parent_mesh: MeshData | None,
+                neighbours: dict[str, MeshData]) -> tuple[float, float, float]:  # fmt: skip
+        """(E_stable, touch cm, pene cm^3) of a world mesh on its parent."""
+        from holousd.geometry._contact import overlap
+        from holousd.physics._static import static_stability
+
+        body = (world.points, world.faces)
+        if parent == BACKGROUND:
+            support = self.floor if self.floor is not None else (
+                None if parent_mesh is None else (parent_mesh.points, parent_mesh.faces))  # fmt: skip
+        else:
+            support = None if parent_mesh is None else (parent_mesh.points, parent_mesh.faces)
+        verdict = static_stability(body, support, friction=self.config.friction, seed=self.config.seed)
+        touch = 100.0 * abs(verdict.gap_m) if math.isfinite(verdict.gap_m) else 5.0
+        pene = 0.0
+        for other, mesh in neighbours.items():
+            if other != BACKGROUND:
+                pene += 1e6 * overlap(body, (mesh.points, mesh.faces)).volume_m3
+        return verdict.energy, touch, pene
+
+    def total(self, e_obs: float, rejected: bool, stable: float, touch: float, pene: float) -> float:
+        c = self.config
+        if rejected:
+            return math.inf
+        return c.w_obs * e_obs + c.w_stable * stable + c.w_touch * touch + c.w_pene * pene
+
+
+def _floor(scene: SceneGraph) -> float | None:
+    """Height of the room's floor (the lowest large horizontal plane of the background mesh), or None."""
+    from holousd._errors import SceneError
+    from holousd.stages._physics_setup import _room_planes
+
+    try:
+        mesh = scene.get_mesh(BACKGROUND)
+    except SceneError:
+        return None
+    if len(mesh.faces) == 0:
+        return None
+    return _room_planes(_world(scene.get_pose(BACKGROUND), mesh))[0]
+
+
+def search(scene: SceneGraph, obs, config: SearchConfig | None = None,  # noqa: ANN001
+           out_dir: str | Path | None = None, log: Callable[[str], None] | None = None) -> SearchResult:  # fmt: skip
+    """Run the search on a fitted scene and write ``15_search.usda`` (see the module docstring)."""
+    from holousd.graph import infer_relations
+    from holousd.priors import make_proposer, object_evidence, observation_energy
+
+    config = config or SearchConfig()
+    if config.mode not in MODES:
+        raise HolousdError(f"search mode {config.mode!r}: choose one of {', '.join(MODES)}")
+    proposers = [make_proposer(p, **config.proposer_options.get(p, {})) for p in config.proposers]
+    out_dir = Path(out_dir) if out_dir is not None else Path(scene.root_layer.realPath).parent
+    start = time.perf_counter()
+    names = [n for n in scene.objects() if _has_mesh(scene, n)]
+    poses = {n: scene.get_pose(n) for n in names}
+    fitted = {n: _world(poses[n], scene.get_mesh(n)) for n in names}
+    relations = infer_relations({n: (m.points, m.faces) for n, m in fitted.items()})
+    scene.push_layer(out_dir / SEARCH_LAYER, provenance=config.provenance, replace=True)
+    choices: list[ObjectChoice] = []
+    if config.mode == "none":
+        scene.save()
+        return SearchResult(scene=scene, mode=config.mode, choices=choices, wall_s=time.perf_counter() - start)
+    scorer = _Scorer(config, _floor(scene))
+    placed: dict[str, MeshData] = {}  # world meshes of the chosen shapes
+    candidates: dict[str, list] = {}  # name -> [(Candidate, world mesh)]
+    by_name: dict[str, ObjectChoice] = {}
+    ground = config.mode == "ground"
+    for count, name in enumerate(_order(relations.support)):
+        t0 = time.perf_counter()
+        parent = relations.support.get(name, BACKGROUND)
+        evidence = object_evidence(scene, obs, name, max_frames=config.max_frames, support=parent,
+                                   placed=None if ground else placed)  # fmt: skip
+        near = {} if ground else {k: v for k, v in evidence.neighbours.items() if k in placed or k == parent}
+        parent_mesh = evidence.neighbours.get(parent)
+        found, scores = [], []
+        for proposer in proposers:
+            for cand in proposer.propose(evidence, config.k, config.seed):
+                e = observation_energy(cand, evidence)
+                world = _world(poses[name], cand.mesh)
+                if ground and parent != BACKGROUND:
+                    stable, touch, pene = 0.0, 0.0, 0.0
+                else:
+                    stable, touch, pene = scorer.physics(world, parent, parent_mesh, near)
+                total = scorer.total(e.energy, e.rejected, stable, touch, pene)
+                scores.append(CandidateScore(proposer=cand.proposer, seed=cand.seed, note=cand.note,
+                                             observation=e.energy, rejected=e.rejected, stable=stable,
+                                             touch_cm=touch, pene_cm3=pene, total=total))  # fmt: skip
+                found.append((cand, world))
+        if not scores:
+            continue
+        chosen = _pick(scores)
+        choice = ObjectChoice(name=name, parent=parent, scores=scores, chosen=chosen, wall_s=0.0)
+        if (config.mode == "tree" and config.revisit and scores[chosen].stable > 0 and parent in by_name):
+            _revisit(name, choice, found, by_name[parent], candidates[parent], relations, placed, scorer)
+        placed[name] = found[choice.chosen][1]
+        candidates[name] = found
+        choice.wall_s = time.perf_counter() - t0
+        by_name[name] = choice
+        choices.append(choice)
+        if config.progress and log is not None:
+            b = choice.best
+            log(f"search [{count + 1}/{len(names)}] {name}: {b.label} (total {b.total:.2f}, "
+                f"{'stands' if b.stable == 0 else 'does not stand'}) of {len(scores)} in {choice.wall_s:.1f} s")
+    for choice in choices:
+        cand = candidates[choice.name][choice.chosen][0]
+        if cand.proposer != "stage1":
+            scene.set_mesh(choice.name, cand.mesh)
+            if cand.sdf is not None:
+                scene.set_sdf(choice.name, cand.sdf)
+        b = choice.best
+        scene.set_energies(choice.name, Energies(
+            stable=b.stable, touch=b.touch_cm / 100.0, penetration=b.pene_cm3 * 1e-6, candidate=choice.chosen,
+            observation=b.observation, total=b.total if math.isfinite(b.total) else -1.0,
+            candidates=[s.label for s in choice.scores], totals=[s.total for s in choice.scores],
+            solver=SOLVER))  # fmt: skip
+        scene.set_support(choice.name, choice.parent)
+    scene.save()
+    return SearchResult(scene=scene, mode=config.mode, choices=choices, wall_s=time.perf_counter() - start)
+
+
+def _has_mesh(scene: SceneGraph, name: str) -> bool:
+    from holousd._errors import SceneError
+
+    try:
+        return len(scene.get_mesh(name).faces) > 0
+    except SceneError:
+        return False
+
+
+def _pick(scores: list[CandidateScore]) -> int:
+    """The lowest total not rejected; the stage-1 shape (or the first) when every candidate is rejected."""
+    live = [i for i, s in enumerate(scores) if math.isfinite(s.total)]
+    if live:
+        return min(live, key=lambda i: (scores[i].total, i))
+    stage1 = [i for i, s in enumerate(scores) if s.proposer == "stage1"]
+    return stage1[0] if stage1 else 0
+
+
+def _revisit(name: str, choice: ObjectChoice, found: list, parent_choice: ObjectChoice, parent_found: list,
+             relations, placed: dict[str, MeshData], scorer: _Scorer) -> None:  # noqa: ANN001  # fmt: skip
+    """No candidate of ``name`` stands on its parent's chosen shape: try the parent's other candidates (lowest
+    total first); take the first under which one of the child's stands and every sibling placed on the parent
+    still stands."""
+    parent = parent_choice.name
+    siblings = [s for s in relations.children(parent) if s in placed and s != name]
+    order = sorted((i for i, s in enumerate(parent_choice.scores) if i != parent_choice.chosen
+                    and math.isfinite(s.total)), key=lambda i: parent_choice.scores[i].total)  # fmt: skip
+    for i in order:
+        alt = parent_found[i][1]
+        rescored = []
+        for (_, world), s in zip(found, choice.scores, strict=True):
+            stable, touch, pene = scorer.physics(world, parent, alt, {parent: alt})
+            rescored.append((scorer.total(s.observation, s.rejected, stable, touch, pene), stable, touch, pene))
+        standing = [j for j, r in enumerate(rescored) if r[1] == 0 and math.isfinite(r[0])]
+        if not standing:
+            continue
+        if any(scorer.physics(placed[s], parent, alt, {parent: alt})[0] > 0 for s in siblings):
+            continue
+        parent_choice.chosen = i
+        parent_choice.revisited = True
+        placed[parent] = alt
+        for j, r in enumerate(rescored):
+            sc = choice.scores[j]
+            sc.total, sc.stable, sc.touch_cm, sc.pene_cm3 = r
+        choice.chosen = min(standing, key=lambda j: (rescored[j][0], j))
+        return
+
+
+def run(scene: SceneGraph, obs, config: SearchConfig | None = None,  # noqa: ANN001
+        log: Callable[[str], None] | None = None) -> SceneGraph:  # fmt: skip
+    """The pipeline's search stage: :func:`search`, returning the scene."""
+    return search(scene, obs, config, log=log).scene

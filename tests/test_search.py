@@ -1,0 +1,162 @@
+"""s2 search: the quasi-static check, the exact z-buffer of E_obs, the tree search's choice, revisiting a parent,
+the modes and what HoloEnergyAPI records."""
+
+from __future__ import annotations
+
+import math
+import shutil
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from holousd.cli import main
+from holousd.io import load
+from holousd.physics._static import static_stability
+from holousd.priors._energy import zbuffer
+from holousd.stages import _search
+from holousd.stages._pipeline import preset, reconstruct
+from holousd.synth import SynthConfig, generate_suite
+from holousd.usd import MeshData, SceneGraph
+
+
+def _box(lo: tuple[float, float, float], hi: tuple[float, float, float]) -> tuple[np.ndarray, np.ndarray]:
+    lo_, hi_ = np.asarray(lo, float), np.asarray(hi, float)
+    m = trimesh.creation.box(extents=hi_ - lo_)
+    m.apply_translation((lo_ + hi_) / 2)
+    return np.asarray(m.vertices), np.asarray(m.faces)
+
+
+def _mesh(points: np.ndarray, faces: np.ndarray) -> MeshData:
+    return MeshData(points=points, faces=faces)
+
+
+def test_static_check_stands_on_a_floor_and_falls_off_an_edge_a_ramp_or_into_the_air() -> None:
+    block = _box((0, 0, 0), (0.2, 0.1, 0.1))
+    standing = static_stability(block, 0.0)
+    assert standing.stands and standing.energy == 0.0 and standing.margin_m == pytest.approx(0.05, abs=5e-3)
+    # negative controls: overhanging a pillar far beyond its centre of mass; floating; on a 40 degree ramp
+    pillar = _box((-0.1, 0.0, -0.5), (0.02, 0.1, 0.0))
+    falls = static_stability(block, pillar)
+    assert not falls.stands and falls.margin_m == pytest.approx(-0.08, abs=5e-3) and falls.energy > 8.0
+    assert not static_stability(block, -0.2).stands  # 20 cm above the floor: no contact
+    ramp = trimesh.creation.box(extents=(1.0, 1.0, 0.1))
+    for degrees, stands in ((40, False), (10, True)):
+        tilted = ramp.copy()
+        tilted.apply_transform(trimesh.transformations.rotation_matrix(np.radians(degrees), (0, 1, 0)))
+        tilted.apply_translation((0.1, 0.05, -0.05 - 0.1 * np.tan(np.radians(degrees))))
+        on = static_stability(block, (np.asarray(tilted.vertices), np.asarray(tilted.faces)))
+        assert on.stands == stands, (degrees, on)
+        assert on.tilt_deg == pytest.approx(degrees, abs=1.5)
+
+
+def test_zbuffer_is_a_ray_cast_through_every_pixel_centre() -> None:
+    sphere = trimesh.creation.icosphere(subdivisions=3, radius=0.5)
+    sphere.apply_translation((0.1, -0.05, 2.0))
+    floor = trimesh.creation.box(extents=(4.0, 0.1, 6.0))  # runs from behind the camera to beyond the sphere
+    floor.apply_translation((0.0, 0.6, 2.0))
+    sphere = trimesh.util.concatenate([sphere, floor])
+    k = np.array([[100.0, 0, 80], [0, 100.0, 60], [0, 0, 1]])
+    depth = zbuffer(sphere.vertices, sphere.faces, k, np.eye(4), (120, 160), chunk=5000)  # chunked on purpose
+    rows, cols = np.mgrid[0:120, 0:160]
+    rays = np.stack([(cols.ravel() - 80) / 100.0, (rows.ravel() - 60) / 100.0, np.ones(rows.size)], axis=1)
+    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    where, index, _ = sphere.ray.intersects_location(np.zeros_like(rays), rays, multiple_hits=False)
+    want = np.full(rows.size, np.inf)
+    want[index] = where[:, 2]
+    got = depth.ravel()
+    assert np.array_equal(np.isfinite(got), np.isfinite(want)) and np.isfinite(got).sum() > 1500
+    assert np.allclose(got[np.isfinite(got)], want[np.isfinite(want)], atol=1e-9)
+
+
+def test_revisit_changes_the_parents_choice_when_no_child_candidate_stands() -> None:
+    cfg = _search.SearchConfig()
+    scorer = _search._Scorer(cfg, 0.0)
+    child = _mesh(*_box((0.0, 0.0, 0.30), (0.2, 0.1, 0.4)))
+    narrow = _mesh(*_box((-0.3, 0.0, 0.0), (0.02, 0.1, 0.30)))  # the child's centre of mass is 8 cm past its end
+    wide = _mesh(*_box((-0.3, 0.0, 0.0), (0.3, 0.1, 0.30)))
+
+    def score(label: str, total: float, stable: float = 0.0,
+              observation: float | None = None) -> _search.CandidateScore:  # fmt: skip
+        return _search.CandidateScore(proposer=label, seed=0, note="",
+                                      observation=total if observation is None else observation, rejected=False,
+                                      stable=stable, touch_cm=0.0, pene_cm3=0.0, total=total)  # fmt: skip
+
+    stable, touch, pene = scorer.physics(child, "table", narrow, {"table": narrow})
+    assert stable > 1.0
+    parent = _search.ObjectChoice(name="table", parent="background", chosen=0, wall_s=0.0,
+                                  scores=[score("stage1", 0.3), score("extrude", 0.5)])  # fmt: skip
+    kid = _search.ObjectChoice(name="box", parent="table", chosen=0, wall_s=0.0,
+                               scores=[score("stage1", scorer.total(0.1, False, stable, touch, pene), stable, 0.1)])
+    placed = {"table": narrow}
+    relations = type("R", (), {"children": staticmethod(lambda p: ["box"])})()
+    _search._revisit("box", kid, [(None, child)], parent, [(None, narrow), (None, wide)], relations, placed, scorer)
+    assert parent.chosen == 1 and parent.revisited and placed["table"] is wide
+    assert kid.best.stable == 0.0 and kid.best.total == pytest.approx(0.1 + cfg.w_touch * kid.best.touch_cm)
+
+
+@pytest.fixture(scope="module")
+def fitted(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    out = tmp_path_factory.mktemp("search")
+    generate_suite("demo", out / "cap", SynthConfig(frames=8, width=64, height=64, progress=False))
+    cfg = preset("fast", progress=False, threads=1)
+    cfg = replace(cfg, fit=replace(cfg.fit, iterations=2))
+    reconstruct(out / "cap" / "demo", out / "rec", cfg, until="fit", log=lambda _: None)
+    return out / "cap" / "demo", out / "rec"
+
+
+def _copy(rec: Path, to: Path) -> SceneGraph:
+    to.mkdir()
+    for f in ("00_observe.usda", "10_fit.usda"):
+        shutil.copy(rec / f, to / f)
+    shutil.copytree(rec / "assets", to / "assets")
+    return SceneGraph.open(to / "10_fit.usda")
+
+
+def test_tree_search_records_every_candidate_and_keeps_the_lowest_total(
+        fitted: tuple[Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    capture, rec = fitted
+    obs = load(capture)
+    first = _search.search(_copy(rec, tmp_path / "a"), obs, _search.SearchConfig(mode="tree"))
+    assert first.choices and (tmp_path / "a" / _search.SEARCH_LAYER).is_file()
+    scene = SceneGraph.open(tmp_path / "a" / _search.SEARCH_LAYER)
+    fit = SceneGraph.open(tmp_path / "a" / "10_fit.usda")
+    changed = 0
+    for choice in first.choices:
+        e = scene.get_energies(choice.name)
+        assert e is not None and e.solver == _search.SOLVER and len(e.candidates) == len(e.totals) >= 2
+        assert e.candidates[0].startswith("stage1#")  # the fitted shape is always a candidate
+        live = [t for t in e.totals if math.isfinite(t)]
+        assert live and e.total == pytest.approx(min(live), rel=1e-6) or choice.revisited
+        assert scene.get_support(choice.name) == choice.parent
+        if not choice.best.proposer == "stage1":  # the chosen shape is the scene's mesh now
+            changed += 1
+            assert len(scene.get_mesh(choice.name).faces) != len(fit.get_mesh(choice.name).faces) or not np.allclose(
+                scene.get_mesh(choice.name).points[:10], fit.get_mesh(choice.name).points[:10])  # fmt: skip
+    assert changed >= 1
+    assert main(["info", str(tmp_path / "a" / _search.SEARCH_LAYER)]) == 0
+    printed = capsys.readouterr().out
+    assert "s2 search" in printed and "runner-up" in printed and f"E_stable measured {_search.SOLVER}" in printed
+    again = _search.search(_copy(rec, tmp_path / "b"), obs, _search.SearchConfig(mode="tree"))
+    assert [(c.name, c.chosen, [s.total for s in c.scores]) for c in again.choices] == [
+        (c.name, c.chosen, [s.total for s in c.scores]) for c in first.choices]  # the same seed, the same scene
+
+
+def test_none_mode_keeps_the_fitted_shapes_and_ground_mode_ignores_other_objects(fitted: tuple[Path, Path],
+                                                                                 tmp_path: Path) -> None:  # fmt: skip
+    capture, rec = fitted
+    obs = load(capture)
+    none = _search.search(_copy(rec, tmp_path / "n"), obs, _search.SearchConfig(mode="none"))
+    scene = SceneGraph.open(tmp_path / "n" / _search.SEARCH_LAYER)
+    assert none.choices == [] and all(scene.get_energies(n) is None for n in scene.objects())
+    assert "table_1" not in (tmp_path / "n" / _search.SEARCH_LAYER).read_text()
+    ground = _search.search(_copy(rec, tmp_path / "g"), obs, _search.SearchConfig(mode="ground"))
+    on_objects = [c for c in ground.choices if c.parent != "background"]
+    assert on_objects and all(s.stable == 0 and s.pene_cm3 == 0 for c in on_objects for s in c.scores)
+    with pytest.raises(Exception, match="search mode"):
+        _search.search(_copy(rec, tmp_path / "x"), obs, _search.SearchConfig(mode="sideways"))
+    assert not (tmp_path / "x" / _search.SEARCH_LAYER).exists()  # refused before anything was written
+    with pytest.raises(Exception, match="unknown search mode"):
+        preset("fast", search="sideways")
