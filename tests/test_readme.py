@@ -38,5 +38,7 @@ def test_readme_main_command_runs_from_a_fresh_folder(tmp_path: Path) -> None:
     assert f"demo report: {report}" in run.stdout
     assert report.is_file() and "Stable%" in report.read_text()
     layers = sorted(p.name for p in (out / "recon").glob("*.usda"))
-    assert layers == ["00_observe.usda", "10_fit.usda", "20_physics.usda", "30_appearance.usda", "scene.usda"]
+    assert layers == [
+        "00_observe.usda", "10_fit.usda", "15_search.usda", "20_physics.usda", "30_appearance.usda", "scene.usda"
+    ]  # fmt: skip
     assert not list(tmp_path.rglob("recon/recon"))
