@@ -67,6 +67,17 @@ class Relations:
         """Objects resting directly on ``parent``, in name order."""
         return sorted(k for k, v in self.support.items() if v == parent)
 
+    def breadth_first(self) -> list[str]:
+        """Every object, breadth-first from the room along the support tree (parents before their children,
+        siblings in name order); any the tree does not reach (a cycle) last, in name order."""
+        order: list[str] = []
+        frontier = [BACKGROUND]
+        while frontier:
+            kids = self.children(frontier.pop(0))
+            order.extend(kids)
+            frontier.extend(kids)
+        return order + sorted(n for n in self.support if n not in order)
+
     def tree_lines(self, root: str = BACKGROUND) -> list[str]:
         """The support tree as indented text lines (root first), beside pairs in brackets."""
         lines = [root]
@@ -240,14 +251,8 @@ def settle_offsets(meshes: dict[str, Mesh], background: Mesh | None, relations: 
     surfaces: dict[str, Mesh] = dict(meshes)
     if background is not None and len(background[1]):
         surfaces[BACKGROUND] = background
-    order: list[str] = []
-    frontier = [BACKGROUND]
-    while frontier:
-        node = frontier.pop(0)
-        kids = relations.children(node)
-        order.extend(kids)
-        frontier.extend(kids)
-    order.extend(sorted(n for n in meshes if n not in order))  # not reachable (should not happen)
+    order = relations.breadth_first()
+    order.extend(sorted(n for n in meshes if n not in order))  # without a support entry (should not happen)
     for name in order:
         parent = relations.support.get(name, BACKGROUND)
         base = shift.get(parent, 0.0) if parent != BACKGROUND else 0.0

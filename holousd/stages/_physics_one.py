@@ -262,19 +262,6 @@ def _base_depth(points: np.ndarray, limits: tuple[float, float]) -> float:
     return float(deepest)
 
 
-def _order(relations: Relations) -> list[str]:
-    """Objects breadth-first from the room (parents before children)."""
-    order: list[str] = []
-    frontier = [BACKGROUND]
-    while frontier:
-        kids = relations.children(frontier.pop(0))
-        order.extend(kids)
-        frontier.extend(kids)
-    return order + sorted(n for n in relations.support if n not in order)
-
-
-
-
 # ----------------------------------------------------------------------------------------------- passes
 def _clip(bodies: dict[str, _Body], walls: list[Wall], clearance: float) -> dict[str, _Body]:
     """Trim every mesh behind the room's walls (keep ``normal . x >= offset + clearance``)."""
@@ -323,7 +310,7 @@ def _rest(bodies: dict[str, _Body], relations: Relations, room: tuple[np.ndarray
     flattened: set[str] = set()
     up = np.array([0.0, 0.0, 1.0])
     band = config.relations.bottom_band
-    for name in _order(relations):
+    for name in relations.breadth_first():
         if name not in out:
             continue
         parent = relations.support.get(name, BACKGROUND)

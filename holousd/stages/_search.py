@@ -162,19 +162,6 @@ def _world(pose, mesh: MeshData) -> MeshData:  # noqa: ANN001
     return MeshData(points=pose.apply(mesh.points), faces=mesh.faces)
 
 
-def _order(support: dict[str, str]) -> list[str]:
-    """Objects breadth-first from the room along the support tree (siblings by name)."""
-    order, frontier = [], [BACKGROUND]
-    while frontier:
-        nxt = []
-        for parent in frontier:
-            kids = sorted(k for k, v in support.items() if v == parent)
-            order += kids
-            nxt += kids
-        frontier = nxt
-    return order + sorted(k for k in support if k not in order)  # a cycle cannot happen; kept for safety
-
-
 class _Scorer:
     def __init__(self, config: SearchConfig, floor: float | None) -> None:
         self.config = config
@@ -247,7 +234,7 @@ def search(scene: SceneGraph, obs, config: SearchConfig | None = None,  # noqa: 
     candidates: dict[str, list] = {}  # name -> [(Candidate, world mesh)]
     by_name: dict[str, ObjectChoice] = {}
     ground = config.mode == "ground"
-    for count, name in enumerate(_order(relations.support)):
+    for count, name in enumerate(relations.breadth_first()):
         t0 = time.perf_counter()
         parent = relations.support.get(name, BACKGROUND)
         evidence = object_evidence(scene, obs, name, max_frames=config.max_frames, support=parent,
@@ -272,7 +259,7 @@ def search(scene: SceneGraph, obs, config: SearchConfig | None = None,  # noqa: 
             continue
         chosen = _pick(scores)
         choice = ObjectChoice(name=name, parent=parent, scores=scores, chosen=chosen, wall_s=0.0)
-        if (config.mode == "tree" and config.revisit and scores[chosen].stable > 0 and parent in by_name):
+        if config.mode == "tree" and config.revisit and scores[chosen].stable > 0 and parent in by_name:
             _revisit(name, choice, found, by_name[parent], candidates[parent], relations, placed, scorer)
         placed[name] = found[choice.chosen][1]
         candidates[name] = found
