@@ -163,6 +163,24 @@ def test_a_concave_object_gets_a_decomposition_of_its_mesh(tmp_path: Path) -> No
     assert rec.collider == "decomposition" and rec.parts >= 2 and rec.collider_reach_m < 0.03
 
 
+def test_a_supports_collider_keeps_out_of_what_stands_on_it(tmp_path: Path) -> None:
+    shelf = _union(_box((0, 0, 0), (0.6, 0.3, 0.02)), _box((0, 0, 0.5), (0.6, 0.3, 0.52)),
+                   _box((0, 0, 0), (0.02, 0.3, 0.52)), _box((0.58, 0, 0), (0.6, 0.3, 0.52)))  # fmt: skip
+    box = _box((0.2, 0.05, 0.021), (0.4, 0.25, 0.2))  # stands on the bottom board, inside the compartment
+
+    def inside(config: PhysicsSetupConfig, folder: str) -> float:
+        (tmp_path / folder).mkdir()
+        scene = _scene(tmp_path / folder, {"shelf": shelf, "box": box})
+        setup_physics(scene, config)
+        pose = scene.get_pose("shelf")
+        parts = [(pose.apply(p.points), p.faces) for p in scene.get_collider("shelf").parts]
+        return sum(overlap(p, _world_mesh(scene, "box")).volume_m3 for p in parts)
+
+    # one part for the shelf's concavity: its hull fills the compartment and the box inside it
+    assert inside(PhysicsSetupConfig(max_parts=1, support_keep_out_parts=0), "bare") > 5e-3
+    assert inside(PhysicsSetupConfig(max_parts=1, support_keep_out_parts=8), "kept") <= 1e-7
+
+
 def test_a_lumpy_convex_object_becomes_its_hull(tmp_path: Path) -> None:
     book = _union(_box((0, 0, 0), (0.2, 0.15, 0.03)), _box((0.02, 0.02, 0.03), (0.05, 0.13, 0.037)),
                   _box((0.15, 0.02, 0.03), (0.18, 0.13, 0.037)))  # fmt: skip  # two 7 mm lumps on its cover
@@ -474,6 +492,21 @@ def test_decomposition_keeps_its_hulls_out_of_a_neighbour() -> None:
     inside_board = _box((0.3, 0.0, 0.005), (0.35, 0.1, 0.015))  # overlaps the ell's own mesh: not the hull's doing
     same = plane_decomposition(ell, tolerance=0.5, max_parts=8, keep_out=[inside_board])
     assert len(same.parts) == 1 and same.intrusion_m3 == 0.0
+
+
+def test_keep_out_parts_are_spent_only_on_hulls_that_enter_a_neighbour() -> None:
+    from holousd.geometry import plane_decomposition
+
+    ell = _union(_box((0, 0, 0), (0.4, 0.1, 0.02)), _box((0, 0, 0), (0.02, 0.1, 0.4)))
+    cube = _box((0.06, 0.0, 0.06), (0.16, 0.1, 0.16))  # inside the ell's hull
+    capped = plane_decomposition(ell, tolerance=0.5, max_parts=1, keep_out=[cube])  # no cut allowed
+    assert len(capped.parts) == 1 and capped.intrusion_m3 > 5e-4
+    extra = plane_decomposition(ell, tolerance=0.5, max_parts=1, keep_out=[cube], keep_out_parts=4)
+    assert 2 <= len(extra.parts) <= 5 and extra.intrusion_m3 <= 1e-8
+    # nothing enters the cube from a tight decomposition: the extra parts are not spent on concavity
+    tight = plane_decomposition(ell, tolerance=0.001, max_parts=1, keep_out=[_box((1, 1, 1), (1.1, 1.1, 1.1))],
+                                keep_out_parts=4)  # fmt: skip
+    assert len(tight.parts) == 1
 
 
 def _with_sdf(scene: SceneGraph, name: str, voxel: float) -> None:

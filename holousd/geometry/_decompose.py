@@ -161,13 +161,13 @@ def _best_split(piece: _Piece, offsets: int, min_volume: float) -> list | None:
 
 def plane_decomposition(mesh: Mesh, *, tolerance: float = 0.003, max_parts: int = 32, offsets: int = 9,
                         cuts: list[tuple[np.ndarray, float]] | None = None, keep_out: list[Mesh] | None = None,
-                        max_intrusion: float = 1e-8) -> Decomposition | None:  # fmt: skip
+                        max_intrusion: float = 1e-8, keep_out_parts: int = 0) -> Decomposition | None:  # fmt: skip
     """Cut a closed mesh into convex pieces by planes (see the module docstring).
 
     Args:
         mesh: Closed manifold mesh ``(points [N, 3], faces [F, 3])``.
         tolerance: Stop cutting a piece when its surface lies within this distance of its hull, metres.
-        max_parts: Most pieces.
+        max_parts: Most pieces cut for concavity.
         offsets: Evenly spaced plane offsets tried along each axis (plus a few where the vertices gather and one
             through the hull point farthest from the piece). Fewer are faster but not safer: on 17 fitted objects
             whose hull reaches over 1 cm outside them (fast preset, 32 parts) 3 offsets reached 33.5 cm in sum in
@@ -179,6 +179,8 @@ def plane_decomposition(mesh: Mesh, *, tolerance: float = 0.003, max_parts: int 
             beside and under the object. A piece whose hull holds more than ``max_intrusion`` m^3 of them is cut
             before any other, whatever its concavity (a shelf's side and upper board as one piece: their hull
             fills the compartment where a bowl stands).
+        keep_out_parts: Further pieces allowed for cutting pieces whose hull enters ``keep_out`` (once no such
+            piece is left, cutting stops at ``max_parts``).
 
     Returns:
         The pieces' hulls and how far they reach outside the mesh; None when the mesh is not a closed manifold.
@@ -204,14 +206,17 @@ def plane_decomposition(mesh: Mesh, *, tolerance: float = 0.003, max_parts: int 
             blocked.append((found, box[0], box[1]))
     pieces = [_piece(p, tolerance, blocked) for p in solids]
     frozen: list[_Piece] = []  # pieces no plane cut improves
-    while len(pieces) + len(frozen) < max_parts:
+    while True:
         worst = max(range(len(pieces)), key=lambda i: (pieces[i].intrusion > max_intrusion, pieces[i].concavity),
                     default=None)  # fmt: skip
         if worst is None or (pieces[worst].concavity <= tolerance and pieces[worst].intrusion <= max_intrusion):
             break
+        cap = max_parts + (keep_out_parts if pieces[worst].intrusion > max_intrusion else 0)
+        if len(pieces) + len(frozen) >= cap:
+            break
         piece = pieces.pop(worst)
         split = _best_split(piece, offsets, min_volume)
-        if split is None or len(pieces) + len(frozen) + len(split) > max_parts:
+        if split is None or len(pieces) + len(frozen) + len(split) > cap:
             frozen.append(piece)
             continue
         pieces.extend(_piece(p, tolerance, blocked) for p in split)

@@ -29,8 +29,8 @@ objects:
    order), at most ``max_parts``). When the decomposition reaches at most ``convexify`` outside the mesh and its
    union enters nothing around it, the mesh and SDF become the union of its parts (the rendered surface fills
    its concavities by at most that much) and the collider is exactly the rendered solid; else the reach is what
-   it is, and is recorded. A support is shaped before its children are set on it, without keep-outs (its
-   children have not been set down yet).
+   it is, and is recorded. A support is shaped before its children are set on it, keeping out of them (where
+   the fit left them) and of what stands around it, with ``support_keep_out_parts`` more parts for that.
 6. ``mass``: mass, centre of mass and inertia (principal moments and axes) of the final mesh at ``density``.
 
 Each object records (``HoloGeometryAPI``): its shift from the pose the fit gave (``holo:geometry:fitShift``), its
@@ -128,7 +128,11 @@ class PhysicsSetupConfig:
     max_separation_loss: float = 0.3
     """A cut between neighbours may remove at most this fraction of an object's volume (else it is not made)."""
     max_parts: int = 32
-    """Most convex parts of a decomposition."""
+    """Most convex parts of a decomposition cut for concavity (the mesh's bumps and hollows)."""
+    support_keep_out_parts: int = 64
+    """Further parts a support's plane decomposition may cut to keep its hulls out of what rests on it and
+    stands around it (a fitted shelf's 32 parts spent on its bumps leave a hull spanning a compartment and the
+    objects standing in it, which the simulators throw)."""
     decomposition: str = "planes"
     """'planes': :func:`holousd.geometry.plane_decomposition` (plane cuts until each piece lies within
     ``hull_tolerance`` of its hull: fitted furniture is slabs and posts); 'coacd': CoACD with the quick settings
@@ -320,7 +324,9 @@ def _rest(bodies: dict[str, _Body], relations: Relations, room: tuple[np.ndarray
                 flattened.add(parent)
                 out[parent] = _flatten_top(out[parent], [out[c] for c in relations.children(parent) if c in out],
                                            config)  # fmt: skip
-            out[parent] = _shaped(out[parent], config)  # its children are set onto its collider next
+            # its children are set onto its collider next: it keeps out of them (where the fit left them) and
+            # of what stands around it
+            out[parent] = _shaped(out[parent], config, _around(parent, out), config.support_keep_out_parts)
             support_parts = [(out[parent].pose.apply(p.points), p.faces) for p in out[parent].collider[1]]
         body = out[name]
         surface = room if parent == BACKGROUND else (out[parent].world() if parent in out else None)
@@ -481,8 +487,8 @@ def _separate(bodies: dict[str, _Body], relations: Relations, config: PhysicsSet
     return out
 
 
-def _decompose(mesh: MeshData, config: PhysicsSetupConfig, planes: tuple = (),
-               keep_out: tuple = ()) -> list[tuple[np.ndarray, np.ndarray]]:  # fmt: skip
+def _decompose(mesh: MeshData, config: PhysicsSetupConfig, planes: tuple = (), keep_out: tuple = (),
+               extra_parts: int = 0) -> list[tuple[np.ndarray, np.ndarray]]:  # fmt: skip
     """Convex decomposition of ``mesh``: plane cuts (``decomposition='planes'``, first along ``planes``) or
     CoACD."""
     from holousd.physics import DecompositionConfig, convex_decomposition
@@ -490,7 +496,7 @@ def _decompose(mesh: MeshData, config: PhysicsSetupConfig, planes: tuple = (),
     if config.decomposition == "planes":
         found = plane_decomposition((mesh.points, mesh.faces), tolerance=config.hull_tolerance,
                                     max_parts=config.max_parts, cuts=[(np.asarray(n), o) for n, o in planes],
-                                    keep_out=list(keep_out))  # fmt: skip
+                                    keep_out=list(keep_out), keep_out_parts=extra_parts)  # fmt: skip
         return found.parts if found is not None else []
     cfg = DecompositionConfig(max_parts=config.max_parts, seed=config.seed)
     if config.decomposition_iterations is not None:  # quick settings: coarse concavity metric, shallow search
@@ -506,8 +512,8 @@ def _intrusion(part: tuple[np.ndarray, np.ndarray], mesh: MeshData, keep_out: tu
     return sum(max(0.0, overlap(part, k).volume_m3 - overlap(own, k).volume_m3) for k in keep_out)
 
 
-def _collider(mesh: MeshData, config: PhysicsSetupConfig, planes: tuple = (),
-              keep_out: tuple = ()) -> tuple[str, list[MeshData], float]:  # fmt: skip
+def _collider(mesh: MeshData, config: PhysicsSetupConfig, planes: tuple = (), keep_out: tuple = (),
+              extra_parts: int = 0) -> tuple[str, list[MeshData], float]:  # fmt: skip
     """The hull of the mesh when it stays within ``hull_tolerance`` of it (or within ``convexify``: the mesh then
     becomes its hull) and enters none of the ``keep_out`` meshes (its neighbours and support, the mesh's frame),
     else a decomposition of the mesh; with the chosen collider's reach outside the mesh, metres."""
@@ -517,25 +523,26 @@ def _collider(mesh: MeshData, config: PhysicsSetupConfig, planes: tuple = (),
     reach = collider_reach([hull], (mesh.points, mesh.faces), seed=config.seed)
     if reach <= max(config.hull_tolerance, config.convexify) and _intrusion(hull, mesh, keep_out) <= 1e-8:
         return "hull", [MeshData(points=hull[0], faces=hull[1])], reach
-    parts = _decompose(mesh, config, planes, keep_out)
+    parts = _decompose(mesh, config, planes, keep_out, extra_parts)
     part_reach = collider_reach(parts, (mesh.points, mesh.faces), seed=config.seed) if parts else np.inf
     if part_reach >= reach:  # the decomposition does not follow the mesh better: the simpler collider
         return "hull", [MeshData(points=hull[0], faces=hull[1])], reach
     return "decomposition", [MeshData(points=p, faces=f) for p, f in parts], part_reach
 
 
-def _shaped(body: _Body, config: PhysicsSetupConfig,
-            keep_out: list[tuple[np.ndarray, np.ndarray]] | None = None) -> _Body:  # fmt: skip
+def _shaped(body: _Body, config: PhysicsSetupConfig, keep_out: list[tuple[np.ndarray, np.ndarray]] | None = None,
+            extra_parts: int = 0) -> _Body:  # fmt: skip
     """The body with its collider derived from its mesh (``body.collider``); when that is a hull or a
     decomposition reaching at most ``convexify`` outside the mesh, the mesh and SDF become the hull or the union of
     its parts (the collider then is the rendered solid). No part enters the ``keep_out`` meshes (world: what
-    stands beside and under it) where a decomposition can avoid it. A body already shaped comes back as it is."""
+    stands beside and under it) where a decomposition can avoid it, with ``extra_parts`` more parts for that. A
+    body already shaped comes back as it is."""
     if body.collider is not None:
         return body
     body = replace(body, mesh=_drop_degenerate(body.mesh))  # the collider from the mesh as it will be authored
     inverse = np.linalg.inv(body.pose.matrix())
     local = tuple((p @ inverse[:3, :3].T + inverse[:3, 3], f) for p, f in keep_out or [])
-    kind, parts, reach = _collider(body.mesh, config, body.planes, local)
+    kind, parts, reach = _collider(body.mesh, config, body.planes, local, extra_parts)
     if kind == "hull" and config.hull_tolerance < reach <= config.convexify:  # a lumpy convex object (a book,
         hull = parts[0]  # a ball fitted on coarse cells): its hull, one part, is both collider and mesh
         grown = body.plus_convex([(hull.points, hull.faces)], hull, f"convexify:hull:{100 * reach:.1f}cm")
