@@ -154,13 +154,19 @@ def test_eval_of_reconstruction_reports_every_key(recon: tuple[Path, _pipeline.P
     assert set(d["render"]) == {"psnr", "ssim", "mesh_psnr"} and np.isfinite(d["render"]["psnr"])
     assert 10.0 < d["render"]["mesh_psnr"] < 60.0  # the meshes in the colour baked onto them
     assert set(d["physics"]) == {"or_pct", "stable_pct", "penetration_cm3", "solver", "cross_check",
-                                 "max_fit_shift_cm", "max_collider_reach_cm", "max_penetration_cm"}  # fmt: skip
+                                 "search_agreement_pct", "max_fit_shift_cm", "max_collider_reach_cm",
+                                 "max_penetration_cm"}  # fmt: skip
     worst = max(o["collider_reach_cm"] for o in d["objects"])  # the rows carry each object's record
     assert d["physics"]["max_collider_reach_cm"] == pytest.approx(worst) and d["physics"]["max_fit_shift_cm"] <= 1.0
     assert d["physics"]["solver"] == "xpbd" and d["physics"]["cross_check"]["solver"] == "mujoco"
     assert d["physics"]["or_pct"] == 100.0
     # Stable% counts the ground truth's objects whose reconstruction stands (the rows' verdicts)
     assert d["physics"]["stable_pct"] == pytest.approx(10.0 * sum(o["stable"] is True for o in d["objects"]))
+    # the search's verdict (quasi-static E_stable) beside the protocol's, per object the search scored
+    shipped = SceneGraph.open(out / "scene.usda")
+    scored = [(shipped.get_energies(o["recon"]), o["stable"]) for o in d["objects"]]
+    same = [(e.stable == 0.0) == stable for e, stable in scored if e is not None and e.chosen is not None]
+    assert same and d["physics"]["search_agreement_pct"] == pytest.approx(100.0 * sum(same) / len(same))
     assert set(d["cost"]) == {"total_s", "stages", "peak_mem_mb"} and list(d["cost"]["stages"]) == list(STAGES)
     assert len(d["objects"]) == 10 and all(o["recon"] == o["name"] for o in d["objects"])
     report = write_report(tmp_path / "report.html", evaluation=d, scene_file=out / "scene.usda", gt_dir=capture)

@@ -160,3 +160,16 @@ def test_none_mode_keeps_the_fitted_shapes_and_ground_mode_ignores_other_objects
     assert not (tmp_path / "x" / _search.SEARCH_LAYER).exists()  # refused before anything was written
     with pytest.raises(Exception, match="unknown search mode"):
         preset("fast", search="sideways")
+
+
+def test_energies_name_the_chosen_candidate_and_the_runner_up_that_e_obs_kept() -> None:
+    from holousd.usd import Energies
+
+    e = Energies(stable=0.0, touch=0.0, penetration=0.0, candidate=1, total=0.2,
+                 candidates=["stage1#0", "extrude#0", "visual_hull#0", "box#0"],
+                 totals=[0.5, 0.2, math.inf, 0.3])  # fmt: skip
+    assert e.chosen == "extrude#0" and e.runner_up() == ("box#0", 0.3)  # the rejected hull is not a runner-up
+    alone = Energies(stable=0.0, touch=0.0, penetration=0.0, candidate=0, total=-1.0, candidates=["stage1#0",
+                     "box#0"], totals=[math.inf, math.inf])  # fmt: skip
+    assert alone.chosen == "stage1#0" and alone.runner_up() is None
+    assert Energies(stable=0.0, touch=0.0, penetration=0.0).chosen is None

@@ -151,6 +151,19 @@ def _verdict(stable: bool | None) -> str:
     return "&ndash;" if stable is None else ("stable" if stable else "falls")
 
 
+def _search_cells(scene: Any, name: str | None) -> str:
+    """Two table cells: the candidate the s2 search chose for ``name`` (with its total and whether its check had
+    it standing) and the runner-up; dashes where the search scored nothing."""
+    energies = scene.get_energies(name) if name is not None and name in scene.objects() else None
+    if energies is None or energies.chosen is None:
+        return "<td>&ndash;</td><td>&ndash;</td>"
+    stands = "stands" if energies.stable == 0.0 else "falls"
+    runner = energies.runner_up()
+    other = f"{html.escape(runner[0])} ({runner[1]:.2f})" if runner else "none (the others rejected by E_obs)"
+    total = f"{energies.total:.2f}" if energies.total >= 0 else "every candidate rejected by E_obs: kept as fitted"
+    return f"<td>{html.escape(energies.chosen)} ({total}, {stands})</td><td>{other}</td>"
+
+
 def _tree_from_graph(graph: dict[str, Any]) -> list[str]:
     from holousd.graph import Relations
 
@@ -224,13 +237,18 @@ def write_report(path: str | os.PathLike[str], *, evaluation: dict[str, Any], sc
     def f(v: Any, spec: str = ".2f") -> str:
         return "&ndash;" if v is None else (format(v, spec) if isinstance(v, float) else html.escape(str(v)))
 
+    def pct(v: float | None) -> str:
+        return f(v, ".0f") + ("%" if v is not None else "")
+
     g, r, p, c = ev["geometry"], ev["render"], ev["physics"], ev["cost"]
+    cross = p.get("cross_check") or {}
     table = "".join(
         f"<tr><td>{html.escape(o['name'])}</td><td>{f(o['recon'])}</td><td>{f(o['parent_gt'])}</td>"
         f"<td>{f(o['parent_recon'])}</td><td>{f(o['chamfer_cm'])}</td><td>{f(o['f1'], '.1f')}</td>"
         f"<td>{f(o.get('f1_visible'), '.1f')}</td>"
         f"<td>{f(o['translation_m'], '.3f')}</td><td>{f(o['rotation_deg'], '.1f')}</td>"
-        f"<td class={'ok' if o['stable'] else 'bad'}>{_verdict(o['stable'])}</td></tr>"
+        f"<td class={'ok' if o['stable'] else 'bad'}>{_verdict(o['stable'])}</td>"
+        f"{_search_cells(scene, o['recon'])}</tr>"
         for o in rows
     )  # fmt: skip
     page = f"""<!doctype html><html><head><meta charset="utf-8"><title>{html.escape(title)}</title><style>
@@ -241,12 +259,17 @@ pre{{background:#f6f6f6;padding:8px;display:inline-block;vertical-align:top;marg
 </style></head><body><h1>{html.escape(title)}</h1>
 <p>Scene: <code>{html.escape(str(scene_file))}</code> &mdash; ground truth: <code>{html.escape(str(gt_dir))}</code></p>
 <h2>Headline</h2><table>
-<tr><th>Chamfer (scene)</th><th>F1 (scene)</th><th>NC</th><th>PSNR</th><th>SSIM</th><th>OR%</th><th>Stable%</th>
-<th>penetration</th><th>collider reach</th><th>mesh penetration</th><th>move from fit</th><th>wall time</th>
+<tr><th>Chamfer (scene)</th><th>F1 (scene)</th><th>NC</th><th>PSNR</th><th>SSIM</th><th>OR%</th>
+<th>Stable% ({html.escape(str(p.get("solver") or "-"))})</th>
+<th>Stable% ({html.escape(str(cross.get("solver", "-")))})</th>
+<th>solvers agree</th><th>search agrees</th><th>penetration</th>
+<th>collider reach</th><th>mesh penetration</th><th>move from fit</th><th>wall time</th>
 <th>peak memory</th></tr>
 <tr><td>{f(g["scene"]["chamfer_cm"])} cm</td><td>{f(g["scene"]["f1"], ".1f")}</td>
 <td>{f(g["scene"]["nc"], ".1f")}</td><td>{f(r["psnr"])} dB</td><td>{f(r["ssim"], ".3f")}</td>
-<td>{f(p["or_pct"], ".0f")}</td><td>{f(p["stable_pct"], ".0f")}</td><td>{f(p["penetration_cm3"], ".1f")} cm&sup3;</td>
+<td>{f(p["or_pct"], ".0f")}</td><td>{f(p["stable_pct"], ".0f")}</td><td>{f(cross.get("stable_pct"), ".0f")}</td>
+<td>{pct(cross.get("agreement_pct"))}</td><td>{pct(p.get("search_agreement_pct"))}</td>
+<td>{f(p["penetration_cm3"], ".1f")} cm&sup3;</td>
 <td>{f(p.get("max_collider_reach_cm"), ".1f")} cm</td><td>{f(p.get("max_penetration_cm"), ".1f")} cm</td>
 <td>{f(p.get("max_fit_shift_cm"), ".1f")} cm</td>
 <td>{f(c["total_s"], ".1f")} s</td><td>{f(c["peak_mem_mb"], ".0f")} MiB</td></tr></table>
@@ -262,7 +285,9 @@ pre{{background:#f6f6f6;padding:8px;display:inline-block;vertical-align:top;marg
 240 Hz; stable = moved &lt; 2 cm and turned &lt; 5&deg;.</p><table><tr><th>object</th><th>reconstructed</th>
 <th>parent (gt)</th><th>parent (recon)</th><th>Chamfer cm (complete)</th><th>F1 (complete)</th><th>F1 (seen)</th>
 <th>moved m</th><th>turned &deg;</th>
-<th>verdict</th></tr>{table}</table>
+<th>verdict</th><th>search: chosen shape</th><th>search: runner-up</th></tr>{table}</table>
+<p>Search: the completion candidate the s2 search kept (lowest E_obs + E_stable + E_touch + E_pene; its
+E_stable is quasi-static, "search agrees" is how often the verdict above repeats it) beside the runner-up.</p>
 <h2>Speed against accuracy</h2><p>This run ("this run") beside the reference <code>holousd bench</code> runs
 shipped with holousd ({len(reference)} runs: {reference_labels}; see the README for the
 command and machine). x: wall time of the reconstruction.</p><img src="{tradeoff_chart}">

@@ -97,8 +97,10 @@ class SceneEvaluation:
     """``{psnr, ssim}`` (null without splats)."""
     physics: dict[str, Any]
     """``{or_pct, stable_pct, penetration_cm3, solver, cross_check: {solver, stable_pct, agreement_pct} | null,
-    max_fit_shift_cm, max_collider_reach_cm, max_penetration_cm}`` (the last three: the worst object's
-    ``HoloGeometryAPI`` record; null when no object has one)."""
+    search_agreement_pct, max_fit_shift_cm, max_collider_reach_cm, max_penetration_cm}``: ``search_agreement_pct``
+    is the share of the objects the s2 search scored whose search verdict (its quasi-static E_stable) the
+    primary solver repeats on the shipped scene (null without search records); the last three are the worst
+    object's ``HoloGeometryAPI`` record (null when no object has one)."""
     cost: dict[str, Any]
     """``{total_s, stages: {name: seconds}, peak_mem_mb}``."""
     objects: list[ObjectRow] = field(default_factory=list)
@@ -380,6 +382,7 @@ def evaluate_scene(recon: str | os.PathLike[str], gt: str | os.PathLike[str],
             "penetration_cm3": float(penetration),
             "solver": primary,
             "cross_check": cross,
+            "search_agreement_pct": _search_agreement(scene, verdicts),
             **_worst_records(rows),
         },
         cost=cost,
@@ -399,6 +402,17 @@ def _record_cm(scene: Any, name: str | None) -> dict[str, float | None]:
     return {"fit_shift_cm": 100.0 * float(np.linalg.norm(record.fit_shift)),
             "collider_reach_cm": 100.0 * float(record.collider_reach),
             "penetration_cm": 100.0 * float(record.penetration)}  # fmt: skip
+
+
+def _search_agreement(scene: Any, verdicts: dict[str, Any]) -> float | None:
+    """Of the objects the s2 search scored (``HoloEnergyAPI``), the share whose search verdict (E_stable 0:
+    stands) the primary solver's protocol verdict on the shipped scene repeats, %; None without either."""
+    same = []
+    for name, verdict in verdicts.items():
+        energies = scene.get_energies(name) if name in scene.objects() else None
+        if energies is not None and energies.chosen is not None:
+            same.append((energies.stable == 0.0) == verdict.stable)
+    return 100.0 * sum(same) / len(same) if same else None
 
 
 def _worst_records(rows: list[ObjectRow]) -> dict[str, float | None]:

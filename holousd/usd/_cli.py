@@ -69,14 +69,14 @@ def _search_lines(energies: dict) -> list[str]:  # name -> Energies
     """One line per object the s2 search scored: the chosen candidate beside the runner-up."""
     lines = []
     for name, e in energies.items():
-        if e.candidate < 0 or e.candidate >= len(e.candidates):
+        if e.chosen is None:
             continue
-        others = [(t, c) for i, (t, c) in enumerate(zip(e.totals, e.candidates, strict=False)) if i != e.candidate]
-        live = [(t, c) for t, c in others if t == t and t != float("inf")]
-        runner = f"{min(live)[1]} {min(live)[0]:.2f}" if live else "none left (the others rejected by E_obs)"
-        lines.append(f"  {name}: {e.candidates[e.candidate]} total {e.total:.2f} (E_obs {e.observation:.2f}, "
+        runner = e.runner_up()
+        runner_text = f"{runner[0]} {runner[1]:.2f}" if runner else "none left (the others rejected by E_obs)"
+        total = f"total {e.total:.2f}" if e.total >= 0 else "kept as fitted, E_obs rejected every candidate"
+        lines.append(f"  {name}: {e.chosen} {total} (E_obs {e.observation:.2f}, "
                      f"E_stable {e.stable:.2f}, touch {100 * e.touch:.1f} cm, pene {1e6 * e.penetration:.1f} cm^3)"
-                     f"; runner-up {runner}; {len(e.candidates)} candidates")  # fmt: skip
+                     f"; runner-up {runner_text}; {len(e.candidates)} candidates")  # fmt: skip
     return lines
 
 

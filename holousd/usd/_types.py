@@ -7,6 +7,7 @@ SceneGraph converts).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -289,13 +290,26 @@ class Energies:
     observation: float = 0.0
     """E_obs of the chosen candidate ((1 - mask IoU) + depth residual / 5 cm + seen-through fraction)."""
     total: float = 0.0
-    """Weighted total of the chosen candidate (lower is better)."""
+    """Weighted total of the chosen candidate (lower is better); -1 when E_obs rejected every candidate and the
+    fitted shape was kept."""
     candidates: list[str] = field(default_factory=list)
     """Candidates tried, ``'proposer#seed'``, in proposal order."""
     totals: list[float] = field(default_factory=list)
     """Weighted total of each candidate (inf: rejected by E_obs)."""
     solver: str = ""
     """How E_stable was measured."""
+
+    @property
+    def chosen(self) -> str | None:
+        """The chosen candidate's label (``'proposer#seed'``), None when the search chose none."""
+        return self.candidates[self.candidate] if 0 <= self.candidate < len(self.candidates) else None
+
+    def runner_up(self) -> tuple[str, float] | None:
+        """The lowest-total candidate other than the chosen one that E_obs did not reject, as (label, total);
+        None when there is none."""
+        live = [(t, c) for i, (t, c) in enumerate(zip(self.totals, self.candidates, strict=False))
+                if i != self.candidate and math.isfinite(t)]  # fmt: skip
+        return (min(live)[1], min(live)[0]) if live else None
 
 
 @dataclass(kw_only=True, frozen=True)
