@@ -161,6 +161,22 @@ def test_a_concave_object_gets_a_decomposition_of_its_mesh(tmp_path: Path) -> No
     scene = _scene(tmp_path, {"shelf": shelf})
     (rec,) = setup_physics(scene, PhysicsSetupConfig()).objects
     assert rec.collider == "decomposition" and rec.parts >= 2 and rec.collider_reach_m < 0.03
+    pose = scene.get_pose("shelf")  # the rendered solid lies inside the collider: a simulator meets all of it
+    hulls = [(pose.apply(p.points), p.faces) for p in scene.get_collider("shelf").parts]
+    mesh = _world_mesh(scene, "shelf")
+    assert sum(overlap(mesh, h).volume_m3 for h in hulls) >= trimesh.Trimesh(*mesh).volume - 1e-9
+
+
+def test_what_no_collider_part_covers_is_cut_from_the_mesh() -> None:
+    from holousd.geometry._contact import within
+
+    block = _box((0, 0, 0), (0.4, 0.2, 0.1))
+    parts = [_box((0, 0, 0), (0.2, 0.2, 0.1)), _box((0.2, 0, 0), (0.38, 0.2, 0.1))]  # 2 cm of the end left out
+    (points, faces), removed = within(block, parts)
+    assert removed == pytest.approx(0.02 * 0.2 * 0.1, rel=1e-6) and trimesh.Trimesh(points, faces).is_watertight
+    assert points[:, 0].max() == pytest.approx(0.38)
+    assert within(block, [_box((-1, -1, -1), (1, 1, 1))])[1] == 0.0  # covered: unchanged
+    assert within(block, [_box((0, 0, 0), (0.1, 0.2, 0.1))])[1] == 0.0  # most of it outside: refused
 
 
 def test_a_supports_collider_keeps_out_of_what_stands_on_it(tmp_path: Path) -> None:

@@ -105,6 +105,20 @@ def subtract(mesh: Mesh, other: Mesh | list[Mesh], *, min_keep: float = 0.5) -> 
     return _result(mesh, result, before, min_keep)
 
 
+def within(mesh: Mesh, parts: list[Mesh], *, min_keep: float = 0.9) -> tuple[Mesh, float]:
+    """``mesh`` cut to what lies inside the union of the convex ``parts`` (a collider that does not cover all
+    of it: pieces a decomposition dropped); returns the mesh and the volume removed. Unchanged as
+    :func:`subtract` leaves it (not closed, nothing outside, falls apart, less than ``min_keep`` left)."""
+    import manifold3d
+
+    solid = _solid(mesh)
+    hulls = [h for h in (_solid(p) for p in parts) if h is not None]
+    if solid is None or not hulls:
+        return mesh, 0.0
+    union = manifold3d.Manifold.batch_boolean(hulls, manifold3d.OpType.Add)
+    return _result(mesh, solid ^ union, solid.volume(), min_keep)
+
+
 @dataclass(kw_only=True)
 class Overlap:
     """The intersection of two solids."""

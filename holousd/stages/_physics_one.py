@@ -59,6 +59,7 @@ from holousd.geometry._contact import (
     mass_properties,
     overlap,
     subtract,
+    within,
     without_zero_area_faces,
 )
 from holousd.geometry._decompose import Decomposition, convexify, plane_decomposition
@@ -220,6 +221,22 @@ class _Body:
             sdf = replace(sdf, grid=values.reshape(sdf.grid.shape).astype(np.float32))
         return replace(self, mesh=MeshData(points=points, faces=faces), sdf=sdf, edits=(*self.edits, edit),
                        collider=None)
+
+    def within_convex(self, parts: list[tuple[np.ndarray, np.ndarray]], edit: str) -> _Body:
+        """The body cut to what of it lies inside its own convex ``parts`` (object coordinates: its collider),
+        in its mesh and SDF; unchanged when that would split it or remove much (see :func:`within`)."""
+        (points, faces), removed = within((self.mesh.points, self.mesh.faces), parts)
+        if removed <= 0:
+            return self
+        sdf = self.sdf
+        if sdf is not None:
+            union = np.full(sdf.grid.size, np.inf)
+            for inside_part in _part_distances(sdf, parts):  # < 0 inside the part; the union's is their minimum
+                union = np.minimum(union, inside_part)
+            values = np.maximum(sdf.grid.reshape(-1).astype(np.float64), union)
+            sdf = replace(sdf, grid=values.reshape(sdf.grid.shape).astype(np.float32))
+        return replace(self, mesh=MeshData(points=points, faces=faces), sdf=sdf,
+                       edits=(*self.edits, f"{edit}:{1e6 * removed:.1f}cm3"), collider=None)  # fmt: skip
 
     def plus_convex(self, parts: list[tuple[np.ndarray, np.ndarray]], mesh: MeshData, edit: str) -> _Body:
         """The body whose solid is ``mesh``, the union of its own convex ``parts`` (object coordinates) that
@@ -547,6 +564,16 @@ def _shaped(body: _Body, config: PhysicsSetupConfig, keep_out: list[tuple[np.nda
         hull = parts[0]  # a ball fitted on coarse cells): its hull, one part, is both collider and mesh
         grown = body.plus_convex([(hull.points, hull.faces)], hull, f"convexify:hull:{100 * reach:.1f}cm")
         return replace(grown, collider=(kind, parts, 0.0))
+    if kind == "decomposition" and reach > config.convexify:
+        # what of the mesh no part covers (slivers the decomposition's cuts dropped) is cut from the mesh and SDF:
+        # a simulator meets all of the rendered solid, and nothing rests inside a part of it that it does not see
+        local = [(p.points, p.faces) for p in parts]
+        trimmed = body.within_convex(local, "trim:uncovered")
+        if trimmed is not body:
+            trimmed = replace(trimmed, mesh=_drop_degenerate(trimmed.mesh))
+            if _closed(trimmed.mesh):
+                reach = collider_reach(local, (trimmed.mesh.points, trimmed.mesh.faces), seed=config.seed)
+                return replace(trimmed, collider=(kind, parts, reach))
     if kind != "decomposition" or not 0.0 < reach <= config.convexify:
         return replace(body, collider=(kind, parts, reach))
     united = convexify((body.mesh.points, body.mesh.faces),
