@@ -29,8 +29,10 @@ objects:
    order), at most ``max_parts``). When the decomposition reaches at most ``convexify`` outside the mesh and its
    union enters nothing around it, the mesh and SDF become the union of its parts (the rendered surface fills
    its concavities by at most that much) and the collider is exactly the rendered solid; else the reach is what
-   it is, and is recorded. A support is shaped before its children are set on it, keeping out of them (where
-   the fit left them) and of what stands around it, with ``support_keep_out_parts`` more parts for that.
+   it is, and is recorded, and what of the mesh no part covers (slivers the cuts dropped) is cut from the mesh
+   and SDF, so that a simulator meets all of the rendered solid. A support is shaped before its children are set
+   on it, keeping out of them (where the fit left them) and of what stands around it, with
+   ``support_keep_out_parts`` more parts for that.
 6. ``mass``: mass, centre of mass and inertia (principal moments and axes) of the final mesh at ``density``.
 
 Each object records (``HoloGeometryAPI``): its shift from the pose the fit gave (``holo:geometry:fitShift``), its
