@@ -138,14 +138,94 @@ class FusionResult:
     """[P] int32 frames in which the voxel lies behind the instance's observed surface."""
     outside: np.ndarray
     """[P] int32 frames in which the voxel lies in free space or behind the room shell."""
+    free: np.ndarray | None = None
+    """[P] int32 frames in which the voxel lies in observed free space (in front of an observed surface, any
+    label); None where not counted."""
 
-    def solid_sdf(self, trunc: float) -> np.ndarray:
+    def solid_sdf(self, trunc: float, shape: tuple[int, int, int] | None = None, keep: float = 2.0) -> np.ndarray:
         """[P] signed distance: the TSDF where observed, else ``-trunc`` inside (behind the surface and never
-        seen free) and ``+trunc`` elsewhere."""
+        seen free) and ``+trunc`` elsewhere.
+
+        With ``shape`` (the samples are a whole grid, C order, z last), what was never observed is decided by
+        what encloses it:
+
+        - hidden voxels (behind the instance's observed surface) are outside where they open onto space seen
+          free under the instance's own observed solid (two voxels in from its edges: a fitted top overhangs its
+          true edge by about that), joined to it through hidden voxels. Behind an observed surface and never
+          seen is no evidence of matter where cameras saw through under the object: the space
+          under a table top between its legs, seen from above and at grazing angles only, is hidden behind the
+          top from every camera, and filling it made a cone of matter from the legs' feet to the top's edges. A
+          box's or a cabinet's inside stays solid, even with two of its sides unseen (space seen free beside it
+          is not under it), and so does what lies within ``keep`` voxels of the observed solid (a board's unseen
+          underside, a top's voxels under what stands on it) and what lies between observed solid above and
+          below it in its vertical column (a leg's upper end, hidden behind the top's edge from every camera,
+          that joins the leg seen below to the top) or on three of its four horizontal sides in its slice (a
+          ball's inside, above its unseen underside). Nothing is opened when that would raise the instance's
+          lowest point by more than ``keep`` voxels: it stood on what was opened (a ball's unseen underside
+          above the floor it rests on; a table none of whose legs was seen);
+        - voxels no frame observed at all (hidden behind other objects: a table top under the book lying on
+          it) are inside where the instance's observed solid walls them in on three of their four horizontal
+          sides, in their slice, and none of it lies above them (the back of a shelf's compartment behind a bowl
+          stays open)."""
         hidden_inside = (self.weight == 0) & (self.inside > 0) & (self.outside == 0)
         sdf = np.where(self.weight > 0, self.tsdf, trunc).astype(np.float32)
-        sdf[hidden_inside] = -trunc
+        if shape is None or self.free is None:
+            sdf[hidden_inside] = -trunc
+            return sdf
+        from scipy.ndimage import binary_erosion, distance_transform_edt
+
+        observed = ((self.weight > 0) & (self.tsdf < 0)).reshape(shape)
+        # never observed at all (behind other objects in every frame that looks there), walled in by the
+        # observed solid on three of four horizontal sides in its slice, with none of it above (the top of a
+        # table under a book lying on it; not the back of a shelf's compartment behind a bowl)
+        walls = sum(_reaches(observed, axis, step).astype(np.int8) for axis in (0, 1) for step in (1, -1))
+        unseen = ((self.weight == 0) & (self.outside == 0) & (self.inside == 0)).reshape(shape)
+        unseen &= (walls >= 3) & ~_reaches(observed, 2, 1)
+        solid = observed | unseen
+        over = _reaches(solid, 2, 1)  # solid at or above, in the voxel's column
+        held = (distance_transform_edt(~solid) <= keep) | (over & _reaches(solid, 2, -1))
+        held |= sum(_reaches(solid, axis, step).astype(np.int8) for axis in (0, 1) for step in (1, -1)) >= 3
+        deep = hidden_inside & ~held.reshape(-1)
+        # openings: space seen free under the instance's own solid, two voxels in from its edges (between a
+        # table's legs, in a shelf's compartment), and outside by the fused evidence (a voxel of the surface band
+        # that one frame saw past, at a silhouette's edge, is no opening)
+        under = binary_erosion(over, structure=_FLAT, iterations=2)
+        opening = (self.free > 0) & (self.weight > 0) & (self.tsdf >= 0) & under.reshape(-1)
+        opened = _open_onto(deep, opening, shape)
+        before = (sdf < 0) | hidden_inside | unseen.reshape(-1)
+        if _lowest(before & ~opened, shape) <= _lowest(before, shape) + keep:  # it still stands where it did
+            hidden_inside &= ~opened
+        sdf[hidden_inside | unseen.reshape(-1)] = -trunc
         return sdf
+
+
+_FLAT = np.zeros((3, 3, 3), bool)
+"""Face neighbours within a horizontal slice (z last): morphology slice by slice."""
+_FLAT[1, :, 1] = _FLAT[:, 1, 1] = True
+
+
+def _lowest(solid: np.ndarray, shape: tuple[int, int, int]) -> float:
+    """Index along z of the lowest ``solid`` voxel (inf when none)."""
+    rows = np.nonzero(solid.reshape(shape).any(axis=(0, 1)))[0]
+    return float(rows[0]) if len(rows) else np.inf
+
+
+def _reaches(solid: np.ndarray, axis: int, step: int) -> np.ndarray:
+    """[X, Y, Z] whether a straight line from each voxel along ``axis`` (forwards with ``step`` 1, backwards with
+    -1) meets ``solid``, the voxel itself included."""
+    if step > 0:
+        return np.flip(np.maximum.accumulate(np.flip(solid, axis=axis), axis=axis), axis=axis)
+    return np.maximum.accumulate(solid, axis=axis)
+
+
+def _open_onto(hidden: np.ndarray, free: np.ndarray, shape: tuple[int, int, int]) -> np.ndarray:
+    """[P] the ``hidden`` voxels joined (faces shared, through hidden voxels) to a ``free`` one."""
+    from scipy.ndimage import label
+
+    labels, _ = label((hidden | free).reshape(shape))
+    labels = labels.reshape(-1)
+    reached = np.unique(labels[free & (labels > 0)])
+    return hidden & np.isin(labels, reached[reached > 0])
 
 
 def fuse_tsdf(
@@ -179,6 +259,7 @@ def fuse_tsdf(
     weight = np.zeros(n, np.float32)
     inside = np.zeros(n, np.int32)
     outside = np.zeros(n, np.int32)
+    seen_free = np.zeros(n, np.int32)
     frames = range(len(views)) if frames is None else frames
     for start in range(0, n, chunk):
         sl = slice(start, min(n, start + chunk))
@@ -196,8 +277,9 @@ def fuse_tsdf(
             weight[sl] += band | free
             inside[sl] += own & (delta <= -trunc)
             outside[sl] += free | (valid & (lab == 0) & (delta <= -trunc))
+            seen_free[sl] += free
     tsdf = np.where(weight > 0, sdf_sum / np.maximum(weight, 1.0), trunc).astype(np.float32)
-    return FusionResult(tsdf=tsdf, weight=weight, inside=inside, outside=outside)
+    return FusionResult(tsdf=tsdf, weight=weight, inside=inside, outside=outside, free=seen_free)
 
 
 def carve_hull(
