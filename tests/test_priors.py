@@ -153,3 +153,39 @@ def test_a_learned_prior_loads_its_weights_from_the_path_given(tmp_path: Path) -
         make_proposer("learned", weights=tmp_path / "junk.pt")
     with pytest.raises(HolousdError, match="never downloads"):
         make_proposer("learned")
+
+
+def _boxes_sdf(boxes: list[tuple[np.ndarray, np.ndarray]], voxel: float) -> tuple[SdfField, MeshData]:
+    """The SDF (union of boxes ``(lo, hi)``, object coordinates) and its marching-cubes mesh."""
+    from holousd.geometry import VoxelGrid, box_sdf
+    from holousd.geometry._meshing import mesh_from_sdf
+
+    lo = np.min([b[0] for b in boxes], axis=0)
+    hi = np.max([b[1] for b in boxes], axis=0)
+    grid = VoxelGrid.from_bounds(lo, hi, voxel, pad=2)
+    values = np.min([box_sdf(grid.points(), a, b) for a, b in boxes], axis=0).reshape(grid.shape)
+    meshed = mesh_from_sdf(values, grid.origin, voxel)
+    assert meshed is not None and meshed.watertight
+    return SdfField(grid=values, origin=grid.origin, voxel_size=voxel), meshed.mesh
+
+
+def test_symmetry_completes_the_legs_no_camera_saw_and_carries_them_to_the_floor() -> None:
+    """A table fitted from one side: its top and its two near legs (ending 3 cm above the floor, as coarse
+    fits end them); the far legs were never seen. Mirrored across its footprint's axis, with the legs carried
+    down, it stands on four legs on the floor; the fitted shape tips."""
+    from holousd.physics._static import static_stability
+
+    top = (np.array([-0.5, -0.3, 0.70]), np.array([0.5, 0.3, 0.74]))
+    legs = [(np.array([-0.48, y - 0.02, 0.03]), np.array([-0.44, y + 0.02, 0.71])) for y in (-0.26, 0.26)]
+    sdf, mesh = _boxes_sdf([top, *legs], 0.02)
+    seen = trimesh.Trimesh(mesh.points, mesh.faces).sample(3000, seed=0)
+    evidence = ObjectEvidence(name="table", instance_id=1, pose=Pose(translation=[0.0, 0.0, 0.0]), mesh=mesh,
+                              sdf=sdf, frames=[], points=seen, support="background", support_height=0.0)  # fmt: skip
+    assert not static_stability((mesh.points, mesh.faces), 0.0).stands  # two legs on one side
+    found = make_proposer("symmetry").propose(evidence, 2, 0)
+    assert len(found) == 2 and all(_watertight(c) for c in found)
+    legs = [(x, y, 0.02) for x in (-0.46, 0.46) for y in (-0.26, 0.26)]  # a leg there, down to the floor
+    four = [c for c in found if trimesh.Trimesh(c.mesh.points, c.mesh.faces).contains(legs).all()]
+    assert len(four) == 1, [c.note for c in found]  # across x; the other axis adds nothing
+    assert four[0].mesh.points[:, 2].min() <= 0.01
+    assert static_stability((four[0].mesh.points, four[0].mesh.faces), 0.0).stands, four[0].note

@@ -34,17 +34,24 @@ def _grid(lo: np.ndarray, hi: np.ndarray, voxel: float) -> VoxelGrid:
     return VoxelGrid.from_bounds(np.asarray(lo, float), np.asarray(hi, float), voxel, pad=2)
 
 
-def _stage1_inside(evidence: ObjectEvidence, points: np.ndarray) -> np.ndarray:
-    """[P] bool: object-coordinate points inside the stage-1 shape (its SDF, or its mesh without one)."""
+def _stage1_values(evidence: ObjectEvidence, points: np.ndarray) -> np.ndarray:
+    """[P] the stage-1 shape's signed distance at object-coordinate points (its SDF, trilinear; without one, +-1
+    from its mesh), negative inside."""
     if evidence.sdf is not None:
         sdf = evidence.sdf
         grid = VoxelGrid(origin=sdf.origin, voxel_size=sdf.voxel_size, shape=sdf.resolution)
-        return sample_grid(sdf.grid, grid, points, outside=1.0) < sdf.iso_level
+        return sample_grid(sdf.grid, grid, points, outside=1.0) - float(sdf.iso_level)
     import trimesh
 
     from holousd.geometry._contact import inside
 
-    return inside(trimesh.Trimesh(evidence.mesh.points, evidence.mesh.faces, process=False), points)
+    found = inside(trimesh.Trimesh(evidence.mesh.points, evidence.mesh.faces, process=False), points)
+    return np.where(found, -1.0, 1.0).astype(np.float32)
+
+
+def _stage1_inside(evidence: ObjectEvidence, points: np.ndarray) -> np.ndarray:
+    """[P] bool: object-coordinate points inside the stage-1 shape (its SDF, or its mesh without one)."""
+    return _stage1_values(evidence, points) < 0
 
 
 def _local(evidence: ObjectEvidence, world: np.ndarray) -> np.ndarray:
@@ -66,12 +73,22 @@ def _support_z(evidence: ObjectEvidence) -> float | None:
 
 
 def _candidate(name: str, seed: int, occupied: np.ndarray, grid: VoxelGrid, note: str,
-               max_faces: int | None = 4000) -> Candidate | None:  # fmt: skip
+               max_faces: int | None = 4000, base: np.ndarray | None = None) -> Candidate | None:  # fmt: skip
     """The candidate of an occupancy on ``grid`` (object coordinates), its mesh simplified to about
-    ``max_faces`` (within a voxel); None when it is empty."""
+    ``max_faces`` (within a voxel); None when it is empty. With ``base`` ([P] signed distance of the shape the
+    occupancy grew from, the stage-1 shape's), that shape keeps its surface and only what ``occupied`` adds to it
+    is a union of voxels: re-voxelising a fitted table grows its 4 cm legs and top by up to a voxel, enough for
+    the grown shape to cover pixels the cameras saw through (rejected by E_obs)."""
     if not occupied.any():
         return None
-    sdf = signed_distance_from_occupancy(occupied.reshape(grid.shape), grid.voxel_size)
+    if base is None:
+        sdf = signed_distance_from_occupancy(occupied.reshape(grid.shape), grid.voxel_size)
+    else:
+        reach = 3.0 * grid.voxel_size
+        sdf = np.clip(np.asarray(base, np.float32), -reach, reach).reshape(grid.shape)
+        added = occupied.reshape(grid.shape) & (sdf >= 0)
+        if added.any():
+            sdf = np.minimum(sdf, signed_distance_from_occupancy(added, grid.voxel_size))
     meshed = mesh_from_sdf(sdf, grid.origin, grid.voxel_size, max_faces=max_faces)
     if meshed is None or not meshed.watertight:
         return None
@@ -119,35 +136,76 @@ class ExtrudeProposer:
         lo = lo.copy()
         lo[2] = min(lo[2], floor)
         grid = _grid(lo, hi, _voxel(evidence))
-        occupied = _stage1_inside(evidence, grid.points()).reshape(grid.shape)
-        z = grid.origin[2] + grid.voxel_size * np.arange(grid.shape[2])
-        above = z >= floor
-        has = occupied.any(axis=2)
-        if not has.any():
+        values = _stage1_values(evidence, grid.points())
+        occupied = (values < 0).reshape(grid.shape)
+        if not occupied.any():
             return []
-        bottom = np.where(has, np.argmax(occupied, axis=2), grid.shape[2])  # lowest occupied sample per column
-        mid = lo[2] + 0.5 * (hi[2] - max(lo[2], floor))
         out = []
         for variant in ("all columns", "columns reaching below mid-height"):
             if len(out) >= k:
                 break
-            columns = has if variant == "all columns" else has & (z[np.minimum(bottom, grid.shape[2] - 1)] < mid)
-            if not columns.any():
+            filled = _carried_down(occupied, grid, floor, legs_only=variant != "all columns")
+            if filled is None:
                 continue
-            below = np.arange(grid.shape[2])[None, None, :] <= bottom[:, :, None]
-            filled = occupied | (columns[:, :, None] & below & above[None, None, :])
-            found = _candidate(self.name, seed, filled, grid, f"{variant} carried down to z = {floor:.3f} m")
+            found = _candidate(self.name, seed, filled, grid, f"{variant} carried down to z = {floor:.3f} m",
+                               base=values)  # fmt: skip
             if found is not None:
                 out.append(found)
         return out
 
 
+def _carried_down(occupied: np.ndarray, grid: VoxelGrid, floor: float, *, legs_only: bool) -> np.ndarray | None:
+    """[X, Y, Z] ``occupied`` with its columns carried down to ``floor`` (object z): every occupied column, or
+    (``legs_only``) those already reaching below half the shape's height above the floor (legs and sides seen in
+    part; a table top's middle stays open). None when no column qualifies."""
+    z = grid.origin[2] + grid.voxel_size * np.arange(grid.shape[2])
+    has = occupied.any(axis=2)
+    if not has.any():
+        return None
+    bottom = np.where(has, np.argmax(occupied, axis=2), grid.shape[2])  # lowest occupied sample per column
+    top = float(z[np.nonzero(occupied.any(axis=(0, 1)))[0].max()])
+    columns = has
+    if legs_only:
+        columns = has & (z[np.minimum(bottom, grid.shape[2] - 1)] < floor + 0.5 * (top - floor))
+    if not columns.any():
+        return None
+    below = np.arange(grid.shape[2])[None, None, :] <= bottom[:, :, None]
+    return occupied | (columns[:, :, None] & below & (z >= floor)[None, None, :])
+
+
+def _footprint(points: np.ndarray) -> tuple[np.ndarray, float]:
+    """The smallest-area rectangle around [P, 2] points: its centre [2] and the angle of one side, radians."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    try:
+        ring = points[ConvexHull(points).vertices]
+    except (QhullError, ValueError):
+        return points.mean(axis=0), 0.0
+    best = (np.inf, 0.0, points.mean(axis=0))
+    for a, b in zip(ring, np.roll(ring, -1, axis=0), strict=True):
+        edge = b - a
+        if not np.any(edge):
+            continue
+        angle = float(np.arctan2(edge[1], edge[0]))
+        u, v = np.array([np.cos(angle), np.sin(angle)]), np.array([-np.sin(angle), np.cos(angle)])
+        pu, pv = ring @ u, ring @ v
+        area = float(np.ptp(pu) * np.ptp(pv))
+        if area < best[0] - 1e-12:
+            centre = 0.5 * (pu.min() + pu.max()) * u + 0.5 * (pv.min() + pv.max()) * v
+            best = (area, angle, centre)
+    return best[2], best[1]
+
+
 class SymmetryProposer:
     """Reflective symmetry about vertical planes: the stage-1 shape united with its mirror image.
 
-    Planes through the stage-1 shape's centre, at every 15 degrees about z; each is scored by how well the
-    observed surface points mirrored across it land on observed points (mean distance to the nearest, capped at
-    5 cm, over the mirrored points that land inside the observed extent); the ``k`` best give candidates."""
+    Planes through the centre of the smallest rectangle around the shape's footprint (stage-1 mesh and observed
+    points): first its two axes, as furniture is made (a table whose far legs no camera saw is mirrored across
+    the plane between its seen and its unseen legs: the observed points mirrored land where nothing was
+    observed, so a score alone would never pick it), then every 15 degrees about z. Each plane is scored by how
+    well the observed surface points mirrored across it land on observed points (mean distance to the nearest,
+    capped at 5 cm); the footprint's axes come first, best first, then the others; ``k`` candidates. The search's
+    E_obs rejects a mirror image that puts matter where a camera saw through."""
 
     name = "symmetry"
     cap = 0.05
@@ -159,27 +217,37 @@ class SymmetryProposer:
             return []
         seen = _local(evidence, evidence.points)
         lo, hi = _stage1_bounds(evidence)
-        centre = (lo + hi) / 2
+        centre_xy, angle = _footprint(np.concatenate([np.asarray(evidence.mesh.points, float)[:, :2], seen[:, :2]]))
+        centre = np.array([*centre_xy, 0.5 * (lo[2] + hi[2])])
         tree = cKDTree(seen)
+        axes = {round(float(np.degrees(angle)) % 180.0, 6), round((float(np.degrees(angle)) + 90.0) % 180.0, 6)}
         scored = []
-        for degrees in range(0, 180, 15):
+        for degrees in sorted(axes) + [d for d in range(0, 180, 15) if all(abs(d - a) > 1e-3 for a in axes)]:
             a = np.radians(degrees)
             n = np.array([np.cos(a), np.sin(a), 0.0])
             mirrored = seen - 2.0 * ((seen - centre) @ n)[:, None] * n
             distance, _ = tree.query(mirrored)
-            scored.append((float(np.minimum(distance, self.cap).mean()), degrees, n))
-        scored.sort(key=lambda s: (s[0], s[1]))
+            scored.append((degrees not in axes, float(np.minimum(distance, self.cap).mean()), degrees, n))
+        scored.sort(key=lambda s: (s[0], s[1], s[2]))
+        floor = _support_z(evidence)
         out = []
-        for score, degrees, n in scored[:k]:
+        for _, score, degrees, n in scored[:k]:
             corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
             reflected = corners - 2.0 * ((corners - centre) @ n)[:, None] * n
-            grid = _grid(np.minimum(lo, reflected.min(0)), np.maximum(hi, reflected.max(0)), _voxel(evidence))
+            low = np.minimum(lo, reflected.min(0))
+            if floor is not None and floor < hi[2]:
+                low[2] = min(low[2], floor)
+            grid = _grid(low, np.maximum(hi, reflected.max(0)), _voxel(evidence))
             pts = grid.points().astype(np.float64)
             mirror = pts - 2.0 * ((pts - centre) @ n)[:, None] * n
-            occupied = _stage1_inside(evidence, pts) | _stage1_inside(evidence, mirror)
-            found = _candidate(self.name, seed, occupied, grid,
-                               f"mirrored across the vertical plane at {degrees} deg through the centre "
-                               f"(fit {100 * score:.1f} cm)")  # fmt: skip
+            values = np.minimum(_stage1_values(evidence, pts), _stage1_values(evidence, mirror))
+            occupied = values < 0
+            if floor is not None and floor < hi[2]:  # legs end where the fit ended them: carried down, as extrude
+                legs = _carried_down(occupied.reshape(grid.shape), grid, floor, legs_only=True)
+                occupied = occupied if legs is None else legs.reshape(-1)
+            found = _candidate(self.name, seed, occupied, grid, base=values, note=
+                               f"mirrored across the vertical plane at {degrees:.0f} deg through the footprint's "
+                               f"centre (fit {100 * score:.1f} cm)")  # fmt: skip
             if found is not None:
                 out.append(found)
         return out
