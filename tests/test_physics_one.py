@@ -525,6 +525,25 @@ def test_keep_out_parts_are_spent_only_on_hulls_that_enter_a_neighbour() -> None
     assert len(tight.parts) == 1
 
 
+def test_keep_out_parts_leave_the_concavity_budget_whole() -> None:
+    """A table whose top has a rim, cut flat where a box stands on it: the rim above the cut is a ring whose
+    hull covers the box, and cutting it apart is paid from ``keep_out_parts``; the top and the legs still get
+    ``max_parts`` (the demo's table spent them on the sheets above three flat cuts, and its hull of the top and
+    the legs reached 48 cm outside the mesh)."""
+    from holousd.geometry import plane_decomposition
+
+    legs = [_box((x, y, 0.0), (x + 0.05, y + 0.05, 0.5)) for x in (-0.3, 0.25) for y in (-0.2, 0.15)]
+    top = _box((-0.3, -0.2, 0.5), (0.3, 0.2, 0.54))
+    rim = [_box((-0.3, -0.2, 0.54), (0.3, -0.18, 0.56)), _box((-0.3, 0.18, 0.54), (0.3, 0.2, 0.56)),
+           _box((-0.3, -0.2, 0.54), (-0.28, 0.2, 0.56)), _box((0.28, -0.2, 0.54), (0.3, 0.2, 0.56))]
+    table = _union(top, *legs, *rim)
+    box = _box((-0.1, -0.1, 0.5405), (0.1, 0.1, 0.7))  # stands on the top, inside the rim's hull
+    cut = [(np.array([0.0, 0.0, 1.0]), 0.54)]
+    found = plane_decomposition(table, tolerance=0.005, max_parts=6, cuts=cut, keep_out=[box], keep_out_parts=12)
+    assert found.intrusion_m3 <= 1e-8 and found.concavity_m <= 0.005, (len(found.parts), found.concavity_m)
+    assert collider_reach(found.parts, table) <= 0.005
+
+
 def _with_sdf(scene: SceneGraph, name: str, voxel: float) -> None:
     """Give ``name`` the SDF of its mesh on a ``voxel`` grid (object coordinates), as the fit would."""
     from holousd.geometry import VoxelGrid, signed_distance_from_occupancy

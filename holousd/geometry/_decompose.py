@@ -179,8 +179,9 @@ def plane_decomposition(mesh: Mesh, *, tolerance: float = 0.003, max_parts: int 
             beside and under the object. A piece whose hull holds more than ``max_intrusion`` m^3 of them is cut
             before any other, whatever its concavity (a shelf's side and upper board as one piece: their hull
             fills the compartment where a bowl stands).
-        keep_out_parts: Further pieces allowed for cutting pieces whose hull enters ``keep_out`` (once no such
-            piece is left, cutting stops at ``max_parts``).
+        keep_out_parts: Further pieces allowed for cutting pieces whose hull enters ``keep_out``; they do not
+            count against ``max_parts`` (on the demo's table, cut flat under three objects, the sheets above the
+            cuts spent the 32 parts and left a hull of the top and its legs reaching 48 cm outside the mesh).
 
     Returns:
         The pieces' hulls and how far they reach outside the mesh; None when the mesh is not a closed manifold.
@@ -205,19 +206,21 @@ def plane_decomposition(mesh: Mesh, *, tolerance: float = 0.003, max_parts: int 
             box = np.asarray(found.bounding_box(), float).reshape(2, 3)
             blocked.append((found, box[0], box[1]))
     pieces = [_piece(p, tolerance, blocked) for p in solids]
-    frozen: list[_Piece] = []  # pieces no plane cut improves
+    frozen: list[_Piece] = []  # pieces no plane cut improves (or the budget does not allow cutting)
+    extra = 0  # parts added by cuts made to keep out of `keep_out`: they do not count against `max_parts`
     while True:
         worst = max(range(len(pieces)), key=lambda i: (pieces[i].intrusion > max_intrusion, pieces[i].concavity),
                     default=None)  # fmt: skip
         if worst is None or (pieces[worst].concavity <= tolerance and pieces[worst].intrusion <= max_intrusion):
             break
-        cap = max_parts + (keep_out_parts if pieces[worst].intrusion > max_intrusion else 0)
-        if len(pieces) + len(frozen) >= cap:
-            break
+        intruding = pieces[worst].intrusion > max_intrusion
         piece = pieces.pop(worst)
         split = _best_split(piece, offsets, min_volume)
-        if split is None or len(pieces) + len(frozen) + len(split) > cap:
-            frozen.append(piece)
+        added = len(split) - 1 if split is not None else 0
+        if intruding and split is not None and extra + added <= keep_out_parts:
+            extra += added
+        elif split is None or len(pieces) + len(frozen) + len(split) > max_parts + extra:
+            frozen.append(piece)  # an intruding piece beyond the extra parts may still be cut for its concavity
             continue
         pieces.extend(_piece(p, tolerance, blocked) for p in split)
     pieces += frozen
