@@ -214,6 +214,8 @@ def plane_decomposition(mesh: Mesh, *, tolerance: float = 0.003, max_parts: int 
         if worst is None or (pieces[worst].concavity <= tolerance and pieces[worst].intrusion <= max_intrusion):
             break
         intruding = pieces[worst].intrusion > max_intrusion
+        if not intruding and len(pieces) + len(frozen) >= max_parts + extra:
+            break
         piece = pieces.pop(worst)
         split = _best_split(piece, offsets, min_volume)
         added = len(split) - 1 if split is not None else 0

@@ -587,10 +587,12 @@ def _shaped(body: _Body, config: PhysicsSetupConfig, keep_out: list[tuple[np.nda
         return replace(body, collider=(kind, parts, reach))  # the union came out open: the mesh stays as seen
     if _intrusion(united, body.mesh, local) > 1e-8:  # the parts could not all keep out: the mesh stays as seen
         return replace(body, collider=(kind, parts, reach))
+    left = collider_reach([(p.points, p.faces) for p in parts], united, seed=config.seed)
+    if left > 1e-3:  # the boolean union lost a sliver of a part: the mesh stays as seen
+        return replace(body, collider=(kind, parts, reach))
     grown = body.plus_convex([(p.points, p.faces) for p in parts], MeshData(points=united[0], faces=united[1]),
                              f"convexify:{100 * reach:.1f}cm")  # fmt: skip
-    return replace(grown, collider=(kind, parts, collider_reach([(p.points, p.faces) for p in parts], united,
-                                                                seed=config.seed)))  # fmt: skip
+    return replace(grown, collider=(kind, parts, left))
 
 
 def _around(name: str, bodies: dict[str, _Body], margin: float = 0.01) -> list[tuple[np.ndarray, np.ndarray]]:
