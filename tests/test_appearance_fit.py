@@ -78,6 +78,10 @@ def test_textured_quad_is_reproduced_on_a_held_out_view(tmp_path: Path) -> None:
     assert shader.GetIdAttr().Get() == "UsdPreviewSurface"
     reader = shader.GetInput("diffuseColor").GetConnectedSources()[0][0].source
     assert UsdShade.Shader(reader.GetPrim()).GetInput("varname").Get() == "displayColor"
+    from holousd.usd._validate import _usd_validators
+
+    shading = [i for i in _usd_validators(reopened.stage) if "/World/Looks" in i.where]
+    assert not shading, shading  # varname is a string (UsdPreviewSurface 2.5): OpenUSD's Sdr check passes
     assert SceneGraph.open(tmp_path / "scene.usda").get_surface_color("card") is None  # the layer below unchanged
 
 

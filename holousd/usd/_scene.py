@@ -698,7 +698,7 @@ class SceneGraph:
         surface.CreateIdAttr("UsdPreviewSurface")
         reader = UsdShade.Shader.Define(self._stage, look.AppendChild("DisplayColor"))
         reader.CreateIdAttr("UsdPrimvarReader_float3")
-        reader.CreateInput("varname", Sdf.ValueTypeNames.Token).Set("displayColor")
+        reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("displayColor")  # string: UsdPreviewSurface 2.5
         mean = Gf.Vec3f(*map(float, colors.mean(axis=0))) if len(colors) else Gf.Vec3f(0.5, 0.5, 0.5)
         reader.CreateInput("fallback", Sdf.ValueTypeNames.Float3).Set(mean)
         result = reader.CreateOutput("result", Sdf.ValueTypeNames.Float3)
