@@ -159,9 +159,10 @@ class FusionResult:
           is not under it), and so does what lies within ``keep`` voxels of the observed solid (a board's unseen
           underside, a top's voxels under what stands on it) and what lies between observed solid above and
           below it in its vertical column (a leg's upper end, hidden behind the top's edge from every camera,
-          that joins the leg seen below to the top) or on three of its four horizontal sides in its slice (a
-          ball's inside, above its unseen underside). Nothing is opened when that would raise the instance's
-          lowest point by more than ``keep`` voxels: it stood on what was opened (a ball's unseen underside
+          that joins the leg seen below to the top) or that observed solid walls in along x and along y in its
+          slice (a ball's inside above its unseen underside; the inside of a cabinet on legs seen from its front
+          and one side: under a table only opposite legs line up). Nothing is opened when that would raise the
+          instance's lowest point by more than ``keep`` voxels: it stood on what was opened (a ball's unseen underside
           above the floor it rests on; a table none of whose legs was seen);
         - voxels no frame observed at all (hidden behind other objects: a table top under the book lying on
           it) are inside where the instance's observed solid walls them in on three of their four horizontal
@@ -184,7 +185,8 @@ class FusionResult:
         solid = observed | unseen
         over = _reaches(solid, 2, 1)  # solid at or above, in the voxel's column
         held = (distance_transform_edt(~solid) <= keep) | (over & _reaches(solid, 2, -1))
-        held |= sum(_reaches(solid, axis, step).astype(np.int8) for axis in (0, 1) for step in (1, -1)) >= 3
+        along_x = _reaches(solid, 0, 1) | _reaches(solid, 0, -1)
+        held |= along_x & (_reaches(solid, 1, 1) | _reaches(solid, 1, -1))  # walled in along x and along y
         deep = hidden_inside & ~held.reshape(-1)
         # openings: space seen free under the instance's own solid, two voxels in from its edges (between a
         # table's legs, in a shelf's compartment), and outside by the fused evidence (a voxel of the surface band

@@ -202,9 +202,10 @@ class SymmetryProposer:
     Planes through the centre of the smallest rectangle around the shape's footprint (stage-1 mesh and observed
     points): first its two axes, as furniture is made (a table whose far legs no camera saw is mirrored across
     the plane between its seen and its unseen legs: the observed points mirrored land where nothing was
-    observed, so a score alone would never pick it), then every 15 degrees about z. Each plane is scored by how
-    well the observed surface points mirrored across it land on observed points (mean distance to the nearest,
-    capped at 5 cm); the footprint's axes come first, best first, then the others; ``k`` candidates. The search's
+    observed, so a score alone would never pick it), then every 15 degrees about z (those more than 7.5 degrees
+    from both axes). Each plane is scored by how well the observed surface points mirrored across it land on
+    observed points (mean distance to the nearest, capped at 5 cm); the footprint's axes come first, best first,
+    then the others, best first; ``k`` candidates (with the search's default k = 2, the two axes). The search's
     E_obs rejects a mirror image that puts matter where a camera saw through."""
 
     name = "symmetry"
@@ -222,7 +223,8 @@ class SymmetryProposer:
         tree = cKDTree(seen)
         axes = {round(float(np.degrees(angle)) % 180.0, 6), round((float(np.degrees(angle)) + 90.0) % 180.0, 6)}
         scored = []
-        for degrees in sorted(axes) + [d for d in range(0, 180, 15) if all(abs(d - a) > 1e-3 for a in axes)]:
+        sweep = [d for d in range(0, 180, 15) if all(min(abs(d - a), 180.0 - abs(d - a)) > 7.5 for a in axes)]
+        for degrees in sorted(axes) + sweep:
             a = np.radians(degrees)
             n = np.array([np.cos(a), np.sin(a), 0.0])
             mirrored = seen - 2.0 * ((seen - centre) @ n)[:, None] * n

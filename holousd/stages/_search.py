@@ -93,9 +93,9 @@ class SearchConfig:
     in a tray) weighs as much as the whole observation term."""
     max_seen_through: float = 0.05
     """E_obs rejects a candidate whose silhouette is seen through on more than this share of its pixels beyond
-    the stage-1 shape's own share (the fitted shape, first among the candidates, sets the baseline: at 2.4 cm
-    cells a fitted table's legs and top edges are about a cell wider than the truth, and the fitted demo table
-    itself had 6% of its silhouette seen through)."""
+    the stage-1 shape's own share, counted up to this share again (the fitted shape, first among the candidates,
+    sets the baseline and is never rejected: at 2.4 cm cells a fitted table's legs and top edges are about a cell
+    wider than the truth, and the fitted demo table itself had 6% of its silhouette seen through)."""
     revisit: bool = True
     """``tree``: try the parent's other candidates when none of a child's stands."""
     friction: float = 0.5
@@ -253,7 +253,7 @@ def search(scene: SceneGraph, obs, config: SearchConfig | None = None,  # noqa: 
             for cand in proposer.propose(evidence, config.k, config.seed):
                 e = observation_energy(cand, evidence, max_seen_through=limit)
                 if cand.proposer == "stage1" and not found:  # the fit's own share: what this resolution gives
-                    limit = config.max_seen_through + e.seen_through
+                    limit = config.max_seen_through + min(e.seen_through, config.max_seen_through)
                     e = replace(e, rejected=False)
                 world = _world(poses[name], cand.mesh)
                 if ground and parent != BACKGROUND:
