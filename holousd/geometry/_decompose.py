@@ -181,8 +181,8 @@ def plane_decomposition(mesh: Mesh, *, tolerance: float = 0.003, max_parts: int 
             fills the compartment where a bowl stands).
         keep_out_parts: Further pieces allowed for cutting pieces whose hull enters ``keep_out``; they do not
             count against ``max_parts`` (once they are spent, such cuts take from ``max_parts``). On the demo's
-            table, cut flat under three objects, the sheets above the
-            cuts spent the 32 parts and left a hull of the top and its legs reaching 48 cm outside the mesh).
+            table, cut flat under three objects, the sheets above the cuts spent the 32 parts when they counted,
+            and left a hull of the top and its legs reaching 48 cm outside the mesh.
 
     Returns:
         The pieces' hulls and how far they reach outside the mesh; None when the mesh is not a closed manifold.
