@@ -581,3 +581,18 @@ def test_legs_the_fit_ended_short_are_carried_down_to_the_floor(tmp_path: Path) 
     _with_sdf(floating, "box", 0.025)
     (rec,) = setup_physics(floating, PhysicsSetupConfig()).objects
     assert not any(e.startswith("extend") for e in rec.edits) and rec.shift_refused_m > 0.05
+
+
+def test_a_closed_mesh_stays_closed_when_its_slivers_cannot_go(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Removing a closed mesh's zero-area faces must not open it: an open mesh gets no decomposition, and its
+    convex hull (50 cm outside the demo's table) became its collider. Where the removal would open it, the
+    mesh stays as it is when the splat binding accepts its faces."""
+    import holousd.stages._physics_one as one
+
+    points, faces = _box((0.0, 0.0, 0.0), (0.1, 0.1, 0.1))
+    closed = MeshData(points=points, faces=faces)
+    opened = MeshData(points=points, faces=faces[1:])  # what a removal that cannot mend leaves
+    monkeypatch.setattr(one, "_without_degenerate", lambda mesh: opened)
+    assert one._drop_degenerate(closed) is closed
+    monkeypatch.setattr(one, "_without_degenerate", lambda mesh: None)  # nothing to remove
+    assert one._drop_degenerate(closed) is closed
