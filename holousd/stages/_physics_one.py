@@ -628,9 +628,10 @@ def _drop_degenerate(mesh: MeshData) -> MeshData:
     if found is None:
         return mesh
     if _closed(mesh) and not _closed(found):
-        tri = np.asarray(mesh.points, np.float32).astype(np.float64)[np.asarray(mesh.faces, np.int64)]
-        twice = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-        if twice.min() >= 1e-14:  # what the splat binding accepts
+        from holousd.geometry._contact import _twice_area
+
+        as_authored = np.asarray(mesh.points, np.float32).astype(np.float64)  # USD stores float32 points
+        if _twice_area(as_authored, mesh.faces).min() >= 1e-14:  # what the splat binding accepts
             return mesh
     return found
 
