@@ -185,8 +185,7 @@ class FusionResult:
         solid = observed | unseen
         over = _reaches(solid, 2, 1)  # solid at or above, in the voxel's column
         held = (distance_transform_edt(~solid) <= keep) | (over & _reaches(solid, 2, -1))
-        along_x = _reaches(solid, 0, 1) | _reaches(solid, 0, -1)
-        held |= along_x & (_reaches(solid, 1, 1) | _reaches(solid, 1, -1))  # walled in along x and along y
+        held |= solid.any(axis=0, keepdims=True) & solid.any(axis=1, keepdims=True)  # walled in along x and y
         deep = hidden_inside & ~held.reshape(-1)
         # openings: space seen free under the instance's own solid, two voxels in from its edges (between a
         # table's legs, in a shelf's compartment), and outside by the fused evidence (a voxel of the surface band
