@@ -351,6 +351,15 @@ def test_support_is_what_an_object_touches_not_what_its_overhang_is_above() -> N
     bridge = {"left": _box((-0.3, -0.1, 0.0), (-0.1, 0.1, 0.1)), "right": _box((0.1, -0.1, 0.0), (0.2, 0.1, 0.1)),
               "board": _box((-0.25, -0.1, 0.1), (0.2, 0.1, 0.12))}
     assert infer_relations(bridge).support["board"] == "left"
+    # a box on a table, beside a book whose fitted side runs 1.4 cm into it; under the box the fitted top sank
+    # 1.5 cm (the demo's table, where nothing saw it): the book's top, 2 cm above the box's base, is no support
+    top = trimesh.Trimesh(*_box((-0.5, -0.5, 0.70), (0.5, 0.5, 0.741)))
+    dent = trimesh.Trimesh(*_box((0.0, -0.29, 0.73), (0.16, -0.14, 0.8)))
+    table = trimesh.boolean.difference([top, dent], engine="manifold")
+    beside = {"table": (np.asarray(table.vertices), np.asarray(table.faces)),
+              "book": _box((-0.21, -0.28, 0.738), (0.02, -0.12, 0.7655)),
+              "box": _box((0.006, -0.283, 0.7457), (0.15, -0.15, 0.862))}
+    assert infer_relations(beside).support == {"table": BACKGROUND, "book": "table", "box": "table"}
 
 
 # ----------------------------------------------------------------------------------------------- decomposition

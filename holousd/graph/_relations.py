@@ -42,8 +42,10 @@ class RelationConfig:
     max_gap: float = 0.05
     """Largest drop from a contact point to a supporting surface, metres."""
     contact_band: float = 0.01
-    """Rays whose drop exceeds the object's shortest drop by more than this do not vote, metres: they pass over
-    an edge of what the object rests on (a few millimetres of fitted gap or overlap still count as contact)."""
+    """Rays whose distance to the nearest upward surface (below the contact point, or above it where the object
+    sank into it) exceeds the object's smallest such distance by more than this do not vote, metres: they pass
+    over an edge of what the object rests on, or start inside a neighbour whose fitted side overlaps it (a few
+    millimetres of fitted gap or overlap still count as contact)."""
     beside_distance: float = 0.01
     """Siblings whose surfaces come this close touch each other, metres."""
     beside_samples: int = 2000
@@ -154,7 +156,7 @@ def infer_relations(meshes: dict[str, Mesh], config: RelationConfig | None = Non
         votes: dict[str, int] = {}
         origins = low + np.array([0.0, 0.0, config.ray_start])
         directions = np.tile([0.0, 0.0, -1.0], (len(origins), 1))
-        best = np.full(len(origins), np.inf)  # [K] drop to the closest surface below
+        best = np.full(len(origins), np.inf)  # [K] distance to the nearest upward surface (above: sunk into it)
         owner = np.full(len(origins), "", dtype=object)
         for other in names:
             if other == name:
@@ -165,12 +167,14 @@ def infer_relations(meshes: dict[str, Mesh], config: RelationConfig | None = Non
             inside = (low[:, 0] >= lo[0]) & (low[:, 0] <= hi[0]) & (low[:, 1] >= lo[1]) & (low[:, 1] <= hi[1])
             if not inside.any():
                 continue
-            locations, ray_index, _ = intersectors[other].intersects_location(origins, directions)
+            locations, ray_index, tri = intersectors[other].intersects_location(origins, directions)
             if len(ray_index) == 0:
                 continue
             drop = origins[ray_index, 2] - locations[:, 2] - config.ray_start  # from the contact point, metres
-            ok = (drop >= -config.ray_start) & (drop <= config.max_gap)
-            for r, d in zip(ray_index[ok], drop[ok], strict=True):
+            # a surface to rest on faces up (a downward ray leaves a solid through the faces under it)
+            up = tms[other].face_normals[tri, 2] > 0.0
+            ok = up & (drop >= -config.ray_start) & (drop <= config.max_gap)
+            for r, d in zip(ray_index[ok], np.abs(drop[ok]), strict=True):
                 if d < best[r]:
                     best[r], owner[r] = d, other
         hit = owner != ""
