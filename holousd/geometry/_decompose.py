@@ -159,9 +159,23 @@ def _best_split(piece: _Piece, offsets: int, min_volume: float) -> list | None:
     return best
 
 
+def _height_over(piece: object, normal: np.ndarray, offset: float) -> float:
+    """How far ``piece`` reaches above the plane ``normal . x = offset``, metres."""
+    from holousd.geometry._contact import _mesh
+
+    return float((_mesh(piece)[0] @ np.asarray(normal, float)).max() - offset)
+
+
+def _components_of_split(piece: object, normal: np.ndarray, offset: float, min_volume: float) -> list:
+    """The pieces of ``piece`` on both sides of the plane ``normal . x = offset``."""
+    one, other = piece.split_by_plane(tuple(float(v) for v in normal), float(offset))  # type: ignore[attr-defined]
+    return _components(one, min_volume) + _components(other, min_volume)
+
+
 def plane_decomposition(mesh: Mesh, *, tolerance: float = 0.003, max_parts: int = 32, offsets: int = 9,
-                        cuts: list[tuple[np.ndarray, float]] | None = None, keep_out: list[Mesh] | None = None,
-                        max_intrusion: float = 1e-8, keep_out_parts: int = 0) -> Decomposition | None:  # fmt: skip
+                        cuts: list[tuple] | None = None, keep_out: list[Mesh] | None = None,
+                        max_intrusion: float = 1e-8, keep_out_parts: int = 0, rim: float = 0.03,
+                        ) -> Decomposition | None:  # fmt: skip
     """Cut a closed mesh into convex pieces by planes (see the module docstring).
 
     Args:
@@ -172,9 +186,13 @@ def plane_decomposition(mesh: Mesh, *, tolerance: float = 0.003, max_parts: int 
             through the hull point farthest from the piece). Fewer are faster but not safer: on 17 fitted objects
             whose hull reaches over 1 cm outside them (fast preset, 32 parts) 3 offsets reached 33.5 cm in sum in
             37 s against 9's 41.0 cm in 65 s, yet the demo's table top then held 3 fewer of its objects.
-        cuts: Planes ``(normal [3], offset)`` every piece is cut by first, half a millimetre along ``normal``
-            from ``normal . x = offset``: where something rests on the mesh, its flat support surface (normal
-            pointing out of it), so that no hull bridges more than that above it.
+        cuts: Planes ``(normal [3], offset)`` or ``(normal, offset, sides)`` every piece is cut by first, half
+            a millimetre along ``normal`` from ``normal . x = offset``: where something rests on the mesh, its flat
+            support surface (normal pointing out of it), so that no hull bridges more than that above it. With
+            ``sides`` (planes ``(normal, offset)`` around the flat patch, normals outwards), what lies above the
+            surface is also cut half a millimetre outside each side: the rim a patch cut into a bumpy top leaves
+            around it is no ring whose hull spans the patch. Only what reaches at most ``rim`` above the surface is
+            cut so (a top's bumps, not a shelf's upper boards).
         keep_out: Closed meshes (the mesh's frame) no piece's hull may enter: the neighbours and the support
             beside and under the object. A piece whose hull holds more than ``max_intrusion`` m^3 of them is cut
             before any other, whatever its concavity (a shelf's side and upper board as one piece: their hull
@@ -194,11 +212,17 @@ def plane_decomposition(mesh: Mesh, *, tolerance: float = 0.003, max_parts: int 
         return None
     min_volume = 1e-4 * float(solid.volume())
     solids = _components(solid, min_volume) or [solid]
-    for normal, offset in cuts or []:  # half a millimetre off the surface: a cut on a face leaves a sheet
+    whole = len(solids)
+    for normal, offset, *sides in cuts or []:  # half a millimetre off the surface: a cut on a face leaves a sheet
         split = []
         for piece in solids:
             above, below = piece.split_by_plane(tuple(float(v) for v in normal), float(offset) + 5e-4)
-            split += _components(above, min_volume) + _components(below, min_volume)
+            over = _components(above, min_volume)
+            for side, at in sides[0] if sides else []:  # the rim left around the patch, cut along its sides
+                over = [part for p in over
+                        for part in (_components_of_split(p, side, at + 5e-4, min_volume)
+                                     if _height_over(p, normal, offset) <= rim else [p])]  # fmt: skip
+            split += over + _components(below, min_volume)
         solids = split or solids
     blocked = []
     for other in keep_out or []:
@@ -208,7 +232,9 @@ def plane_decomposition(mesh: Mesh, *, tolerance: float = 0.003, max_parts: int 
             blocked.append((found, box[0], box[1]))
     pieces = [_piece(p, tolerance, blocked) for p in solids]
     frozen: list[_Piece] = []  # pieces no plane cut improves (or the budget does not allow cutting)
-    extra = 0  # parts added by cuts made to keep out of `keep_out`: they do not count against `max_parts`
+    # parts added by the given `cuts` and by cuts made to keep out of `keep_out` do not count against `max_parts`
+    extra = len(solids) - whole
+    keep_out_parts += extra
     while True:
         worst = max(range(len(pieces)), key=lambda i: (pieces[i].intrusion > max_intrusion, pieces[i].concavity),
                     default=None)  # fmt: skip

@@ -11,7 +11,8 @@ objects:
 3. ``rest``: breadth-first from the room, each object is set onto its support. Under each child resting on a
    support, the support's surface is cut flat at the lowest point of it under the child (at most ``top_depth``
    below the highest point there, and no deeper than the child can follow), inside the child's footprint (1 cm
-   wider) and no higher than that highest point (a fitted top is a bumpy dome of facets; a wall beside stays);
+   wider) and no higher than that highest point, and its dents there filled up to that flat surface (a fitted
+   top is a bumpy dome of facets; a wall beside stays);
    the support's shape is then settled (pass 5) with its decomposition cut along those flat surfaces. Then the
    child's unseen underside is cut flat, ``clearance`` above the higher of the support's mesh and collider under
    it (deep enough for a base spanning half its width, ``base_depth``), the object moved down when it floats
@@ -173,9 +174,11 @@ class _Body:
     fit_pose: Pose
     edits: tuple[str, ...] = ()
     refused: float = 0.0
-    planes: tuple[tuple[tuple[float, float, float], float], ...] = ()
-    """Flat support surfaces cut into the mesh (object coordinates, ``normal . x = offset``): the collider's
-    decomposition cuts along them, so no convex part bridges above a surface something rests on."""
+    planes: tuple[tuple, ...] = ()
+    """Flat support surfaces cut into the mesh: ``(normal, offset, sides)`` in object coordinates, the surface
+    ``normal . x = offset`` and the vertical planes ``(normal, offset)`` around the patch cut flat (normals
+    outwards): the collider's decomposition cuts along them, so no convex part bridges above a surface something
+    rests on (neither from below nor from the rim of matter left standing around the patch)."""
     collider: tuple[str, list[MeshData], float] | None = None
     """The collider derived from the current mesh (kind, parts in object coordinates, reach outside the mesh),
     once :func:`_shaped` has settled the mesh; None while the mesh may still change."""
@@ -447,13 +450,20 @@ def _extend_down(body: _Body, target: float, reach: float) -> _Body | None:
                             f"extend:base:{len(solids)}x{100 * longest:.1f}cm")  # fmt: skip
 
 
+def _local_plane(pose: Pose, normal: np.ndarray, offset: float) -> tuple[tuple[float, float, float], float]:
+    """The world plane ``normal . x = offset`` in the object coordinates of ``pose``."""
+    rotation = pose.matrix()[:3, :3]
+    return tuple(float(v) for v in rotation.T @ normal), float(offset - normal @ np.asarray(pose.translation, float))
+
+
 def _flatten_top(parent: _Body, children: list[_Body], config: PhysicsSetupConfig) -> _Body:
     """Cut a support's surface flat under each child resting on it: what of the support stands above the
     lowest point of its surface under the child (at most ``top_depth`` below the highest point there, and no
     deeper than the child can follow), inside the child's footprint (1 cm wider) and no higher than that
-    surface's highest point under the child, is cut away from the support's mesh and SDF. A fitted top is a
-    bumpy dome of facets, on which a child's flat base would rock; a wall or rim beside the child and a board
-    above it stay (but for what of them lies within 1 cm of the footprint, below that highest point)."""
+    surface's highest point under the child, is cut away from the support's mesh and SDF, and the dents there
+    below that surface are filled up to it (:func:`_filled_up_to`). A fitted top is a bumpy dome of facets, on
+    which a child's flat base would rock; a wall or rim beside the child and a board above it stay (but for what
+    of them lies within 1 cm of the footprint, below that highest point)."""
     from holousd.physics import convex_hull
 
     if not children:
@@ -468,19 +478,53 @@ def _flatten_top(parent: _Body, children: list[_Body], config: PhysicsSetupConfi
         # the lowest of the surface under the child (robust to a stray dent), no deeper than the child can follow
         # (half the largest move: its own base cut takes the rest)
         plane = max(float(np.percentile(hits[:, 2], 10)), highest - config.top_depth, bottom - config.max_shift / 2)
-        if highest - plane < 5e-4:
-            continue
         c = child.world()[0]
         lo = np.array([*(c[:, :2].min(axis=0) - 0.01), plane])
         hi = np.array([*(c[:, :2].max(axis=0) + 0.01), highest + 1e-3])  # no higher: a wall beside stays
         corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-        cut = body.minus_convex([convex_hull(corners)], f"cut:top:{child.name}")
-        if cut is not body:
-            rotation = cut.pose.matrix()[:3, :3]
-            normal = rotation.T @ np.array([0.0, 0.0, 1.0])
-            offset = plane - float(np.asarray(cut.pose.translation, float)[2])
-            body = replace(cut, planes=(*cut.planes, (tuple(float(v) for v in normal), offset)))
+        cut = body.minus_convex([convex_hull(corners)], f"cut:top:{child.name}") if highest - plane >= 5e-4 else body
+        cut = _filled_up_to(cut, lo, hi, config.top_depth, f"fill:top:{child.name}")
+        if cut is not body:  # flat at `plane` there now: the collider's decomposition cuts along it
+            axes = np.eye(3)
+            sides = tuple(_local_plane(cut.pose, sign * axes[k], sign * bound[k])
+                          for k in (0, 1) for sign, bound in ((1, hi), (-1, lo)))  # fmt: skip
+            body = replace(cut, planes=(*cut.planes, (*_local_plane(cut.pose, axes[2], plane), sides)))
     return body
+
+
+def _filled_up_to(body: _Body, lo: np.ndarray, hi: np.ndarray, depth: float, edit: str) -> _Body:
+    """The body with the dents of its surface inside the box ``lo``-``hi`` (world; ``lo[2]`` the flat surface's
+    height) filled up to that surface, in its mesh and SDF: what rests there is seen from above and beside,
+    never under it, and a convex part of the support spans those dents at the surface's height anyway. Only
+    where all of the box's footprint lies on the support, at most ``depth`` below the surface (nothing is added
+    past a top's edge, nor in a hole or down a step)."""
+    import manifold3d
+    import trimesh
+
+    from holousd.geometry._contact import _mesh, _solid
+    from holousd.physics import convex_hull
+
+    plane = float(lo[2])
+    xs, ys = np.meshgrid(np.linspace(lo[0] + 1e-3, hi[0] - 1e-3, 9), np.linspace(lo[1] + 1e-3, hi[1] - 1e-3, 9))
+    origins = np.column_stack([xs.ravel(), ys.ravel(), np.full(xs.size, plane + 0.01)])
+    support = trimesh.Trimesh(*body.world(), process=False)
+    hits, rays, _ = support.ray.intersects_location(origins, np.tile([0.0, 0.0, -1.0], (len(origins), 1)),
+                                                    multiple_hits=False)  # fmt: skip
+    if len(rays) < len(origins) or hits[:, 2].min() < plane - depth:  # past an edge, over a hole or a step
+        return body
+    deepest = float(hits[:, 2].min())
+    if plane - deepest < 5e-4:
+        return body
+    inverse = np.linalg.inv(body.pose.matrix())
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (deepest - 1e-3, plane)])
+    part = convex_hull(corners @ inverse[:3, :3].T + inverse[:3, 3])
+    solid, block = _solid((body.mesh.points, body.mesh.faces)), _solid(part)
+    if solid is None or block is None:
+        return body
+    united = without_zero_area_faces(_mesh(manifold3d.Manifold.batch_boolean([solid, block], manifold3d.OpType.Add)))
+    if not _closed(MeshData(points=united[0], faces=united[1])):
+        return body
+    return body.plus_convex([part], MeshData(points=united[0], faces=united[1]), edit)
 
 
 def _separate(bodies: dict[str, _Body], relations: Relations, config: PhysicsSetupConfig) -> dict[str, _Body]:
@@ -514,7 +558,9 @@ def _decompose(mesh: MeshData, config: PhysicsSetupConfig, planes: tuple = (), k
 
     if config.decomposition == "planes":
         found = plane_decomposition((mesh.points, mesh.faces), tolerance=config.hull_tolerance,
-                                    max_parts=config.max_parts, cuts=[(np.asarray(n), o) for n, o in planes],
+                                    max_parts=config.max_parts,
+                                    cuts=[(np.asarray(n), o, [(np.asarray(m), q) for m, q in sides])
+                                          for n, o, sides in planes],
                                     keep_out=list(keep_out), keep_out_parts=extra_parts)  # fmt: skip
         return found.parts if found is not None else []
     cfg = DecompositionConfig(max_parts=config.max_parts, seed=config.seed)
