@@ -634,3 +634,23 @@ def test_a_support_is_flat_under_its_child_in_mesh_and_collider(tmp_path: Path) 
         assert abs(hits[:, 2].max() - 0.5) < 1e-3, rec["table"]
     book = _world(scene, "book")
     assert 0.5005 < book[:, 2].min() <= 0.502  # on it (the collider's cut lies half a millimetre above the surface)
+
+
+def test_parts_of_a_piece_the_trim_drops_go_with_it(monkeypatch: pytest.MonkeyPatch) -> None:
+    """What of a mesh no collider part covers is trimmed from it; a piece joined to the rest only through such
+    a sliver (under 1% of the volume) goes with it, and so must the parts that covered it: left, they stood in
+    empty space (the demo's shelf had three parts 13 cm from its rendered mesh)."""
+    from holousd.stages import _physics_one
+
+    board, neck = _box((0.0, 0.0, 0.0), (1.0, 1.0, 0.1)), _box((0.47, 0.47, 0.1), (0.48, 0.48, 0.12))
+    column = _box((0.45, 0.45, 0.12), (0.5, 0.5, 0.42))
+    points, faces = _union(board, neck, column)
+    padded = _box((0.0, 0.0, 0.0), (1.005, 1.0, 0.1))  # reaches 5 mm past the board: a decomposition's reach
+    monkeypatch.setattr(_physics_one, "_decompose", lambda *args, **kwargs: [padded, column])
+    body = _physics_one._Body(name="shelf", mesh=MeshData(points=points, faces=faces), sdf=None, pose=Pose(),
+                              fit_pose=Pose())  # fmt: skip
+    shaped = _physics_one._shaped(body, PhysicsSetupConfig(convexify=0.0))
+    kind, parts, reach = shaped.collider
+    assert kind == "decomposition" and any(e.startswith("trim:uncovered") for e in shaped.edits)
+    assert shaped.mesh.points[:, 2].max() == pytest.approx(0.1)  # the column went with the neck
+    assert len(parts) == 1 and reach == pytest.approx(0.005, abs=1e-3)

@@ -620,7 +620,12 @@ def _shaped(body: _Body, config: PhysicsSetupConfig, keep_out: list[tuple[np.nda
         if trimmed is not body:
             trimmed = replace(trimmed, mesh=_drop_degenerate(trimmed.mesh))
             if _closed(trimmed.mesh):
-                reach = collider_reach(local, (trimmed.mesh.points, trimmed.mesh.faces), seed=config.seed)
+                # a piece the trim dropped (joined to the rest by what no part covered: under 1% of the volume)
+                # takes its parts with it: they would stand in empty space (the demo's shelf had three parts
+                # 13 cm from its rendered mesh, in a compartment)
+                mesh = (trimmed.mesh.points, trimmed.mesh.faces)
+                parts = [p for p in parts if overlap((p.points, p.faces), mesh).volume_m3 > 0.01 * _volume(p)]
+                reach = collider_reach([(p.points, p.faces) for p in parts], mesh, seed=config.seed)
                 return replace(trimmed, collider=(kind, parts, reach))
     if kind != "decomposition" or not 0.0 < reach <= config.convexify:
         return replace(body, collider=(kind, parts, reach))
@@ -658,6 +663,13 @@ def _around(name: str, bodies: dict[str, _Body], margin: float = 0.01) -> list[t
         else:
             out += [(body.pose.apply(p.points), p.faces) for p in body.collider[1]]
     return out
+
+
+def _volume(mesh: MeshData) -> float:
+    """Volume of a closed mesh, m^3."""
+    import trimesh
+
+    return abs(float(trimesh.Trimesh(mesh.points, mesh.faces, process=False).volume))
 
 
 def _closed(mesh: MeshData) -> bool:
