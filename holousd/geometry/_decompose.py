@@ -191,8 +191,8 @@ def plane_decomposition(mesh: Mesh, *, tolerance: float = 0.003, max_parts: int 
             support surface (normal pointing out of it), so that no hull bridges more than that above it. With
             ``sides`` (planes ``(normal, offset)`` around the flat patch, normals outwards), what lies above the
             surface is also cut half a millimetre outside each side: the rim a patch cut into a bumpy top leaves
-            around it is no ring whose hull spans the patch. Only what reaches at most ``rim`` above the surface is
-            cut so (a top's bumps, not a shelf's upper boards).
+            around it is no ring whose hull spans the patch; what reaches higher than ``rim`` above the surface is
+            first cut there (a shelf's side panels and upper boards stand on its board's rim).
         keep_out: Closed meshes (the mesh's frame) no piece's hull may enter: the neighbours and the support
             beside and under the object. A piece whose hull holds more than ``max_intrusion`` m^3 of them is cut
             before any other, whatever its concavity (a shelf's side and upper board as one piece: their hull
@@ -217,12 +217,17 @@ def plane_decomposition(mesh: Mesh, *, tolerance: float = 0.003, max_parts: int 
         split = []
         for piece in solids:
             above, below = piece.split_by_plane(tuple(float(v) for v in normal), float(offset) + 5e-4)
-            over = _components(above, min_volume)
-            for side, at in sides[0] if sides else []:  # the rim left around the patch, cut along its sides
-                over = [part for p in over
-                        for part in (_components_of_split(p, side, at + 5e-4, min_volume)
-                                     if _height_over(p, normal, offset) <= rim else [p])]  # fmt: skip
-            split += over + _components(below, min_volume)
+            over, tall = _components(above, min_volume), []
+            if sides and sides[0]:  # the rim left around the patch (up to `rim` above it), cut along its sides
+                high = [p for p in over if _height_over(p, normal, offset) > rim]
+                over = [p for p in over if _height_over(p, normal, offset) <= rim]
+                for p in high:
+                    upper, lower = p.split_by_plane(tuple(float(v) for v in normal), float(offset) + rim)
+                    tall += _components(upper, min_volume)
+                    over += _components(lower, min_volume)
+                for side, at in sides[0]:
+                    over = [part for p in over for part in _components_of_split(p, side, at + 5e-4, min_volume)]
+            split += tall + over + _components(below, min_volume)
         solids = split or solids
     blocked = []
     for other in keep_out or []:
