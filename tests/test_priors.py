@@ -20,6 +20,7 @@ from holousd.priors import (
     object_evidence,
     observation_energy,
     propose,
+    seen_through_limit,
 )
 from holousd.synth import SynthConfig, generate_suite
 from holousd.usd import MeshData, Pose, SceneGraph, SdfField
@@ -189,3 +190,23 @@ def test_symmetry_completes_the_legs_no_camera_saw_and_carries_them_to_the_floor
     assert len(four) == 1, [c.note for c in found]  # across x; the other axis adds nothing
     assert four[0].mesh.points[:, 2].min() <= 0.01
     assert static_stability((four[0].mesh.points, four[0].mesh.faces), 0.0).stands, four[0].note
+
+
+def test_the_rejection_limit_is_relative_to_the_fitted_shape(truth: SceneGraph, capture: Path) -> None:
+    """The fitted shape is never rejected, and its own seen-through share (what the fit's cells give), up to the
+    limit again, is added to the other candidates' limit: a candidate seen through as much as the fit is kept."""
+
+    class _Fixed:
+        def __init__(self, name: str, mesh: MeshData) -> None:
+            self.name, self.mesh = name, mesh
+
+        def propose(self, evidence: ObjectEvidence, k: int, seed: int) -> list[Candidate]:
+            return [Candidate(proposer=self.name, seed=seed, mesh=self.mesh)]
+
+    table = object_evidence(truth, load(capture), "table_1")
+    off = MeshData(points=table.mesh.points + [0.01, 0.0, 0.0], faces=table.mesh.faces)  # 1 cm off: ~8% through
+    alone = observation_energy(Candidate(proposer="other", seed=0, mesh=off), table)
+    assert 0.05 < alone.seen_through < 0.1 and alone.rejected
+    (_, fitted), (_, other) = propose(table, [_Fixed("stage1", off), _Fixed("other", off)], k=1)
+    assert not fitted.rejected and not other.rejected
+    assert seen_through_limit(0.3) == pytest.approx(0.1) and seen_through_limit(0.0) == pytest.approx(0.05)

@@ -20,7 +20,7 @@ from holousd.priors._api import (
     available_proposers,
     make_proposer,
 )
-from holousd.priors._energy import ObservationEnergy, observation_energy
+from holousd.priors._energy import ObservationEnergy, observation_energy, seen_through_limit
 from holousd.priors._evidence import object_evidence
 
 __all__ = [
@@ -36,6 +36,7 @@ __all__ = [
     "object_evidence",
     "observation_energy",
     "propose",
+    "seen_through_limit",
 ]
 
 BUILTIN = ("stage1", "extrude", "symmetry", "primitive", "visual_hull")
@@ -43,8 +44,8 @@ BUILTIN = ("stage1", "extrude", "symmetry", "primitive", "visual_hull")
 
 
 def propose(evidence: ObjectEvidence, proposers: list[str | CompletionProposer] | None = None, *, k: int = 2,
-            seed: int = 0,
-            options: dict[str, dict[str, Any]] | None = None) -> list[tuple[Candidate, ObservationEnergy]]:  # fmt: skip
+            seed: int = 0, options: dict[str, dict[str, Any]] | None = None,
+            max_seen_through: float = 0.05) -> list[tuple[Candidate, ObservationEnergy]]:  # fmt: skip
     """Candidates of every proposer (``k`` each, seeded), each with its E_obs, in proposer order.
 
     Args:
@@ -53,10 +54,20 @@ def propose(evidence: ObjectEvidence, proposers: list[str | CompletionProposer] 
         k: Candidates per proposer at most.
         seed: Seed of every proposer (the same seed gives the same candidates).
         options: Keyword arguments per proposer name (``{"learned": {"weights": "model.pt"}}``).
+        max_seen_through: Rejection limit of E_obs; once the first ``stage1`` candidate (the fitted shape,
+            never rejected) is scored, relative to its own share (:func:`seen_through_limit`).
     """
+    from dataclasses import replace
+
     out = []
+    limit, fitted = max_seen_through, False
     for entry in proposers or list(BUILTIN):
         proposer = make_proposer(entry, **(options or {}).get(entry, {})) if isinstance(entry, str) else entry
         for candidate in proposer.propose(evidence, k, seed):
-            out.append((candidate, observation_energy(candidate, evidence)))
+            energy = observation_energy(candidate, evidence, max_seen_through=limit)
+            if candidate.proposer == "stage1" and not fitted:
+                fitted = True
+                limit = seen_through_limit(energy.seen_through, max_seen_through)
+                energy = replace(energy, rejected=False)
+            out.append((candidate, energy))
     return out

@@ -218,7 +218,7 @@ def search(scene: SceneGraph, obs, config: SearchConfig | None = None,  # noqa: 
            out_dir: str | Path | None = None, log: Callable[[str], None] | None = None) -> SearchResult:  # fmt: skip
     """Run the search on a fitted scene and write ``15_search.usda`` (see the module docstring)."""
     from holousd.graph import infer_relations
-    from holousd.priors import make_proposer, object_evidence, observation_energy
+    from holousd.priors import make_proposer, object_evidence, observation_energy, seen_through_limit
 
     config = config or SearchConfig()
     if config.mode not in MODES:
@@ -253,7 +253,7 @@ def search(scene: SceneGraph, obs, config: SearchConfig | None = None,  # noqa: 
             for cand in proposer.propose(evidence, config.k, config.seed):
                 e = observation_energy(cand, evidence, max_seen_through=limit)
                 if cand.proposer == "stage1" and not found:  # the fit's own share: what this resolution gives
-                    limit = config.max_seen_through + min(e.seen_through, config.max_seen_through)
+                    limit = seen_through_limit(e.seen_through, config.max_seen_through)
                     e = replace(e, rejected=False)
                 world = _world(poses[name], cand.mesh)
                 if ground and parent != BACKGROUND:
