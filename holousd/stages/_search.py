@@ -142,7 +142,8 @@ class ObjectChoice:
     """Index into ``scores``."""
     wall_s: float
     revisited: bool = False
-    """The choice was changed when one of its children had no candidate that stands."""
+    """The choice was made by a revisit: a parent's, changed when one of its children had no candidate that
+    stands; that child's, the lowest total among its candidates that stand on the parent's new choice."""
 
     @property
     def best(self) -> CandidateScore:
@@ -342,6 +343,7 @@ def _revisit(name: str, choice: ObjectChoice, found: list, parent_choice: Object
             sc = choice.scores[j]
             sc.total, sc.stable, sc.touch_cm, sc.pene_cm3 = r
         choice.chosen = min(standing, key=lambda j: (rescored[j][0], j))
+        choice.revisited = True
         return
 
 
