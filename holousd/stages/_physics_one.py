@@ -403,7 +403,6 @@ def _extend_down(body: _Body, target: float, reach: float) -> _Body | None:
     ended at different heights, a base); each whose bottom lies above ``target`` gets the convex hull of itself and
     its shadow at ``target`` united with the mesh. None when nothing is to be carried down or the mesh is not a
     closed manifold."""
-    import manifold3d
     from scipy.spatial import ConvexHull, QhullError
 
     from holousd.geometry._contact import _mesh, _solid
@@ -434,20 +433,30 @@ def _extend_down(body: _Body, target: float, reach: float) -> _Body | None:
         faces[flip] = faces[flip][:, ::-1]
         parts.append((prism, faces))
         longest = max(longest, lowest - target)
-    solid = _solid((body.mesh.points, body.mesh.faces))
+    feet = [p for p in parts if _solid(p) is not None]
+    united = _united(body.mesh, feet)
+    if united is None:  # slivers it could not mend: as seen
+        return None
+    return body.plus_convex(parts, united, f"extend:base:{len(feet)}x{100 * longest:.1f}cm")
+
+
+def _united(mesh: MeshData, parts: list[tuple[np.ndarray, np.ndarray]]) -> MeshData | None:
+    """The union of a closed mesh and convex ``parts`` (the same coordinates), without zero-area faces; None
+    when the mesh or every part is no closed solid, or the union comes out empty or open."""
+    import manifold3d
+
+    from holousd.geometry._contact import _mesh, _solid
+
+    solid = _solid((mesh.points, mesh.faces))
     solids = [s for s in (_solid(p) for p in parts) if s is not None]
     if solid is None or not solids:
         return None
-    united = manifold3d.Manifold.batch_boolean([solid, *solids], manifold3d.OpType.Add)
-    if united.is_empty():
+    union = manifold3d.Manifold.batch_boolean([solid, *solids], manifold3d.OpType.Add)
+    if union.is_empty():
         return None
-    import trimesh
-
-    points_u, faces_u = without_zero_area_faces(_mesh(united))
-    if not trimesh.Trimesh(points_u, faces_u, process=False).is_watertight:  # slivers it could not mend: as seen
-        return None
-    return body.plus_convex(parts, MeshData(points=points_u, faces=faces_u),
-                            f"extend:base:{len(solids)}x{100 * longest:.1f}cm")  # fmt: skip
+    points, faces = without_zero_area_faces(_mesh(union))
+    out = MeshData(points=points, faces=faces)
+    return out if _closed(out) else None
 
 
 def _local_plane(pose: Pose, normal: np.ndarray, offset: float) -> tuple[tuple[float, float, float], float]:
@@ -498,10 +507,8 @@ def _filled_up_to(body: _Body, lo: np.ndarray, hi: np.ndarray, depth: float, edi
     never under it, and a convex part of the support spans those dents at the surface's height anyway. Only
     where all of the box's footprint lies on the support, at most ``depth`` below the surface (nothing is added
     past a top's edge, nor in a hole or down a step)."""
-    import manifold3d
     import trimesh
 
-    from holousd.geometry._contact import _mesh, _solid
     from holousd.physics import convex_hull
 
     plane = float(lo[2])
@@ -518,13 +525,8 @@ def _filled_up_to(body: _Body, lo: np.ndarray, hi: np.ndarray, depth: float, edi
     inverse = np.linalg.inv(body.pose.matrix())
     corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (deepest - 1e-3, plane)])
     part = convex_hull(corners @ inverse[:3, :3].T + inverse[:3, 3])
-    solid, block = _solid((body.mesh.points, body.mesh.faces)), _solid(part)
-    if solid is None or block is None:
-        return body
-    united = without_zero_area_faces(_mesh(manifold3d.Manifold.batch_boolean([solid, block], manifold3d.OpType.Add)))
-    if not _closed(MeshData(points=united[0], faces=united[1])):
-        return body
-    return body.plus_convex([part], MeshData(points=united[0], faces=united[1]), edit)
+    united = _united(body.mesh, [part])
+    return body if united is None else body.plus_convex([part], united, edit)
 
 
 def _separate(bodies: dict[str, _Body], relations: Relations, config: PhysicsSetupConfig) -> dict[str, _Body]:
@@ -624,7 +626,8 @@ def _shaped(body: _Body, config: PhysicsSetupConfig, keep_out: list[tuple[np.nda
                 # takes its parts with it: they would stand in empty space (the demo's shelf had three parts
                 # 13 cm from its rendered mesh, in a compartment)
                 mesh = (trimmed.mesh.points, trimmed.mesh.faces)
-                parts = [p for p in parts if overlap((p.points, p.faces), mesh).volume_m3 > 0.01 * _volume(p)]
+                parts = [p for p in parts if overlap((p.points, p.faces), mesh).volume_m3
+                         > 0.01 * mass_properties((p.points, p.faces), 1.0).volume_m3]  # fmt: skip
                 reach = collider_reach([(p.points, p.faces) for p in parts], mesh, seed=config.seed)
                 return replace(trimmed, collider=(kind, parts, reach))
     if kind != "decomposition" or not 0.0 < reach <= config.convexify:
@@ -663,13 +666,6 @@ def _around(name: str, bodies: dict[str, _Body], margin: float = 0.01) -> list[t
         else:
             out += [(body.pose.apply(p.points), p.faces) for p in body.collider[1]]
     return out
-
-
-def _volume(mesh: MeshData) -> float:
-    """Volume of a closed mesh, m^3."""
-    import trimesh
-
-    return abs(float(trimesh.Trimesh(mesh.points, mesh.faces, process=False).volume))
 
 
 def _closed(mesh: MeshData) -> bool:
