@@ -20,7 +20,7 @@ from holousd.priors._api import (
     available_proposers,
     make_proposer,
 )
-from holousd.priors._energy import ObservationEnergy, observation_energy, seen_through_limit
+from holousd.priors._energy import ObservationEnergy, observation_energy, scored_among, seen_through_limit
 from holousd.priors._evidence import object_evidence
 
 __all__ = [
@@ -36,6 +36,7 @@ __all__ = [
     "object_evidence",
     "observation_energy",
     "propose",
+    "scored_among",
     "seen_through_limit",
 ]
 
@@ -57,17 +58,13 @@ def propose(evidence: ObjectEvidence, proposers: list[str | CompletionProposer] 
         max_seen_through: Rejection limit of E_obs; once the first ``stage1`` candidate (the fitted shape,
             never rejected) is scored, relative to its own share (:func:`seen_through_limit`).
     """
-    from dataclasses import replace
-
     out = []
     limit, fitted = max_seen_through, False
     for entry in proposers or list(BUILTIN):
         proposer = make_proposer(entry, **(options or {}).get(entry, {})) if isinstance(entry, str) else entry
         for candidate in proposer.propose(evidence, k, seed):
-            energy = observation_energy(candidate, evidence, max_seen_through=limit)
-            if candidate.proposer == "stage1" and not fitted:
-                fitted = True
-                limit = seen_through_limit(energy.seen_through, max_seen_through)
-                energy = replace(energy, rejected=False)
+            energy, limit = scored_among(candidate, evidence, limit, baseline=not fitted,
+                                         max_seen_through=max_seen_through)  # fmt: skip
+            fitted = fitted or candidate.proposer == "stage1"
             out.append((candidate, energy))
     return out

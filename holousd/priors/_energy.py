@@ -136,6 +136,19 @@ def seen_through_limit(stage1: float, max_seen_through: float = 0.05) -> float:
     return max_seen_through + min(max(stage1, 0.0), max_seen_through)
 
 
+def scored_among(candidate: Candidate, evidence: ObjectEvidence, limit: float, *, baseline: bool,
+                 max_seen_through: float = 0.05) -> tuple[ObservationEnergy, float]:
+    """E_obs of one of an object's candidates under the running rejection ``limit``, and the limit for the
+    candidates after it. With ``baseline`` and a ``stage1`` candidate (the fitted shape) the candidate is never
+    rejected and its own seen-through share sets the limit (:func:`seen_through_limit`)."""
+    from dataclasses import replace
+
+    energy = observation_energy(candidate, evidence, max_seen_through=limit)
+    if baseline and candidate.proposer == "stage1":
+        return replace(energy, rejected=False), seen_through_limit(energy.seen_through, max_seen_through)
+    return energy, limit
+
+
 def observation_energy(candidate: Candidate, evidence: ObjectEvidence, *, margin: float = 0.03,
                        depth_scale: float = 0.05, max_seen_through: float = 0.05) -> ObservationEnergy:  # fmt: skip
     """Score ``candidate`` against every frame of ``evidence`` (see the module docstring)."""

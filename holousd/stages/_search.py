@@ -46,7 +46,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from holousd._errors import HolousdError
@@ -219,7 +219,7 @@ def search(scene: SceneGraph, obs, config: SearchConfig | None = None,  # noqa: 
            out_dir: str | Path | None = None, log: Callable[[str], None] | None = None) -> SearchResult:  # fmt: skip
     """Run the search on a fitted scene and write ``15_search.usda`` (see the module docstring)."""
     from holousd.graph import infer_relations
-    from holousd.priors import make_proposer, object_evidence, observation_energy, seen_through_limit
+    from holousd.priors import make_proposer, object_evidence, scored_among
 
     config = config or SearchConfig()
     if config.mode not in MODES:
@@ -252,10 +252,9 @@ def search(scene: SceneGraph, obs, config: SearchConfig | None = None,  # noqa: 
         limit = config.max_seen_through
         for proposer in proposers:
             for cand in proposer.propose(evidence, config.k, config.seed):
-                e = observation_energy(cand, evidence, max_seen_through=limit)
-                if cand.proposer == "stage1" and not found:  # the fit's own share: what this resolution gives
-                    limit = seen_through_limit(e.seen_through, config.max_seen_through)
-                    e = replace(e, rejected=False)
+                # the fitted shape, first, sets the limit: its own share is what this resolution gives
+                e, limit = scored_among(cand, evidence, limit, baseline=not found,
+                                        max_seen_through=config.max_seen_through)  # fmt: skip
                 world = _world(poses[name], cand.mesh)
                 if ground and parent != BACKGROUND:
                     stable, touch, pene = 0.0, 0.0, 0.0
