@@ -210,3 +210,31 @@ def test_the_rejection_limit_is_relative_to_the_fitted_shape(truth: SceneGraph, 
     (_, fitted), (_, other) = propose(table, [_Fixed("stage1", off), _Fixed("other", off)], k=1)
     assert not fitted.rejected and not other.rejected
     assert seen_through_limit(0.3) == pytest.approx(0.1) and seen_through_limit(0.0) == pytest.approx(0.05)
+
+
+def test_the_floor_under_an_object_is_the_rooms_where_no_camera_saw_it(truth: SceneGraph, capture: Path) -> None:
+    """A floor hidden behind furniture is a hole in the room's fused mesh. The support height under an object
+    there is the room's floor height, not a speck of the mesh that one ray meets (top_only's bin: a grazed wall
+    edge 42 cm up kept every candidate floating)."""
+    obs = load(capture)
+    table = object_evidence(truth, obs, "table_1")
+    world = table.pose.apply(table.mesh.points)
+    lo, hi = world.min(0) - 0.1, world.max(0) + 0.1
+    points, faces = [], []
+    for x in np.arange(-3.0, 3.0, 0.1):  # a floor of 10 cm squares, facing up, with a hole under the table
+        for y in np.arange(-3.0, 3.0, 0.1):
+            if lo[0] < x + 0.05 < hi[0] and lo[1] < y + 0.05 < hi[1]:
+                continue
+            n = len(points)
+            points += [[x, y, 0.0], [x + 0.1, y, 0.0], [x + 0.1, y + 0.1, 0.0], [x, y + 0.1, 0.0]]
+            faces += [[n, n + 1, n + 2], [n, n + 2, n + 3]]
+    mid = (world.min(0) + world.max(0)) / 2  # one ray of the 7 x 7 grid goes down through the middle
+    n = len(points)
+    points += [[mid[0] - 0.02, mid[1] - 0.02, -0.01], [mid[0] + 0.02, mid[1] - 0.02, -0.01],
+               [mid[0], mid[1] + 0.02, -0.01]]  # a speck of the mesh 1 cm below the floor, one ray wide
+    faces += [[n, n + 1, n + 2]]
+    holey = MeshData(points=np.array(points), faces=np.array(faces))
+    seen = object_evidence(truth, obs, "table_1", placed={"background": holey})
+    assert seen.support_height is None  # nothing a surface: the speck is one ray's
+    given = object_evidence(truth, obs, "table_1", placed={"background": holey}, floor=0.0)
+    assert given.support_height == 0.0

@@ -26,12 +26,18 @@ _FROM_SCENE = object()
 
 def object_evidence(scene: SceneGraph, obs: Observations, name: str, *, max_frames: int | None = 24,
                     stride: int = 2, margin: float = 0.05, support: object = _FROM_SCENE,
-                    placed: dict[str, MeshData] | None = None) -> ObjectEvidence:  # fmt: skip
+                    placed: dict[str, MeshData] | None = None,
+                    floor: float | None = None) -> ObjectEvidence:  # fmt: skip
     """The evidence of object ``name``: the frames whose mask shows it (at most ``max_frames``, evenly spaced),
     its masked depth back-projected every ``stride`` pixels, its stage-1 mesh and SDF, its support (from the
     scene's relations when it has them, or ``support``) and the height of the support's surface under it, and
     the meshes of the support and of every object within ``margin`` metres of it (world meshes in ``placed``
-    replace the scene's: the shapes a search has already chosen)."""
+    replace the scene's: the shapes a search has already chosen). The support's surface: rays cast straight
+    down from ``margin`` above the object's bottom each take the upward-facing face nearest that bottom (the top
+    the fit sank the object into; not a wall's face a ray grazes, a rim beside it or the floor under a table),
+    and the third highest of those wins (an object overhanging its table's edge is on the table; a speck in
+    the room's mesh that one ray meets is no support). Under an object on the room where the room's mesh has no
+    such face (floor no camera saw, behind furniture), it is ``floor``, the room's floor height, when given."""
     info = scene.node_info(name)
     mesh = scene.get_mesh(name)
     try:
@@ -79,13 +85,20 @@ def object_evidence(scene: SceneGraph, obs: Observations, name: str, *, max_fram
 
         bottom = float(world[:, 2].min())
         xs, ys = (np.linspace(world[:, a].min(), world[:, a].max(), 7) for a in (0, 1))
-        origins = np.stack([*np.meshgrid(xs, ys, indexing="ij"), np.full((7, 7), bottom + 0.01)], -1).reshape(-1, 3)
-        hits, _, _ = RayMeshIntersector(trimesh.Trimesh(below.points, below.faces, process=False)).intersects_location(
-            origins, np.tile([0.0, 0.0, -1.0], (len(origins), 1)), multiple_hits=False)  # fmt: skip
-        hits = np.asarray(hits, float).reshape(-1, 3)
-        hits = hits[hits[:, 2] <= bottom + margin]
-        if len(hits):
-            height = float(hits[:, 2].max())
+        origins = np.stack([*np.meshgrid(xs, ys, indexing="ij"), np.full((7, 7), bottom + margin)], -1).reshape(-1, 3)
+        below_mesh = trimesh.Trimesh(below.points, below.faces, process=False)
+        hits, rays, faces = RayMeshIntersector(below_mesh).intersects_location(
+            origins, np.tile([0.0, 0.0, -1.0], (len(origins), 1)), multiple_hits=True)  # fmt: skip
+        hits, rays = np.asarray(hits, float).reshape(-1, 3), np.asarray(rays, int)
+        up = below_mesh.face_normals[np.asarray(faces, int)][:, 2] > 0.5 if len(hits) else np.zeros(0, bool)
+        nearest: dict[int, float] = {}  # per ray, the upward face nearest the object's bottom
+        for ray, z in zip(rays[up], hits[up, 2], strict=True):
+            if ray not in nearest or abs(z - bottom) < abs(nearest[ray] - bottom):
+                nearest[int(ray)] = float(z)
+        if len(nearest) >= 3:  # a surface at least three rays agree on: not a speck of the room's mesh
+            height = sorted(nearest.values())[-3]
+    if height is None and support == BACKGROUND and floor is not None and floor <= world[:, 2].min() + margin:
+        height = float(floor)
     return ObjectEvidence(name=name, instance_id=info.instance_id, pose=pose, mesh=mesh, sdf=sdf, frames=frames,
                           points=np.concatenate(points) if points else np.zeros((0, 3)), support=support,
                           support_height=height, neighbours=neighbours)  # fmt: skip

@@ -245,7 +245,7 @@ def search(scene: SceneGraph, obs, config: SearchConfig | None = None,  # noqa: 
         t0 = time.perf_counter()
         parent = relations.support.get(name, BACKGROUND)
         evidence = object_evidence(scene, obs, name, max_frames=config.max_frames, support=parent,
-                                   placed=None if ground else placed)  # fmt: skip
+                                   placed=None if ground else placed, floor=scorer.floor)  # fmt: skip
         near = {} if ground else {k: v for k, v in evidence.neighbours.items() if k in placed or k == parent}
         parent_mesh = evidence.neighbours.get(parent)
         found, scores = [], []
