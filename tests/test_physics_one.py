@@ -636,6 +636,35 @@ def test_a_support_is_flat_under_its_child_in_mesh_and_collider(tmp_path: Path) 
     assert 0.5005 < book[:, 2].min() <= 0.502  # on it (the collider's cut lies half a millimetre above the surface)
 
 
+def test_a_bump_under_a_childs_edge_is_cut_with_the_rest_of_its_patch(tmp_path: Path) -> None:
+    """Where the fit left a bump in the top under a child's edge, the child's fitted underside rides up over it,
+    out of its bottom band: the bump is still under the child and is cut flat with the rest of the patch, in
+    mesh and collider (hard/small_beside_large: a bump 2.4 cm high under the back of the 40 cm box notched the
+    box's collider, whose parts then overlapped the table's by 12 cm^3, and the box was thrown 1 m)."""
+    bump = _box((-0.05, 0.06, 0.5), (0.05, 0.15, 0.515))
+    ramp = trimesh.convex.convex_hull([(x, y, z) for x in (-0.11, 0.11) for y, z in ((0.0, 0.4), (0.0, 0.5015),
+                                       (0.06, 0.5165), (0.11, 0.5165), (0.11, 0.4))])  # its underside rides up
+    box = trimesh.boolean.difference([trimesh.Trimesh(*_box((-0.1, -0.1, 0.5015), (0.1, 0.1, 0.8))), ramp],
+                                     engine="manifold")  # fmt: skip
+    objects = {"table": _union(_box((-0.3, -0.3, 0.0), (0.3, 0.3, 0.5)), bump),
+               "box": (np.asarray(box.vertices, float), np.asarray(box.faces))}  # fmt: skip
+    scene = _scene(tmp_path, objects)
+    rec = _records(setup_physics(scene, PhysicsSetupConfig()))
+    assert rec["box"].parent == "table" and "cut:top:box" in rec["table"].edits, rec["table"]
+    xs, ys = np.meshgrid(np.linspace(-0.04, 0.04, 5), np.linspace(0.065, 0.095, 5))  # over the bump, under the box
+    origins = np.column_stack([xs.ravel(), ys.ravel(), np.full(xs.size, 0.52)])
+    down = np.tile([0.0, 0.0, -1.0], (len(origins), 1))
+    pose = scene.get_pose("table")
+    parts = [trimesh.Trimesh(pose.apply(p.points), p.faces, process=False) for p in scene.get_collider("table").parts]
+    for surface in (trimesh.Trimesh(*_world_mesh(scene, "table"), process=False), trimesh.util.concatenate(parts)):
+        hits, rays, _ = surface.ray.intersects_location(origins, down, multiple_hits=False)
+        assert len(rays) == len(origins) and hits[:, 2].max() < 0.5 + 1e-3, np.round(hits[:, 2], 4)
+    box_pose = scene.get_pose("box")
+    box_parts = [(box_pose.apply(p.points), p.faces) for p in scene.get_collider("box").parts]
+    worst = max(overlap(a, (b.vertices, b.faces)).volume_m3 for a in box_parts for b in parts)
+    assert worst < 1e-7, worst
+
+
 def test_parts_of_a_piece_the_trim_drops_go_with_it(monkeypatch: pytest.MonkeyPatch) -> None:
     """What of a mesh no collider part covers is trimmed from it; a piece joined to the rest only through such
     a sliver (under 1% of the volume) goes with it, and so must the parts that covered it: left, they stood in

@@ -482,8 +482,10 @@ def _flatten_top(parent: _Body, children: list[_Body], config: PhysicsSetupConfi
         hits = _hits_below(child, body.world(), config.relations.bottom_band)
         if len(hits) == 0:
             continue
-        highest = float(hits[:, 2].max())
         bottom = float(child.world()[0][:, 2].min())
+        # the support's surface under the child's edge, where the child's underside rides up over a bump (its
+        # bottom band does not reach there), is the child's too: cut flat with the rest, up to top_depth higher
+        highest = max(float(hits[:, 2].max()), _top_under(child, body, bottom + 2 * config.top_depth))
         # the lowest of the surface under the child (robust to a stray dent), no deeper than the child can follow
         # (half the largest move: its own base cut takes the rest)
         plane = max(float(np.percentile(hits[:, 2], 10)), highest - config.top_depth, bottom - config.max_shift / 2)
@@ -499,6 +501,28 @@ def _flatten_top(parent: _Body, children: list[_Body], config: PhysicsSetupConfi
                           for k in (0, 1) for sign, bound in ((1, hi), (-1, lo)))  # fmt: skip
             body = replace(cut, planes=(*cut.planes, (*_local_plane(cut.pose, axes[2], plane), sides)))
     return body
+
+
+def _top_under(child: _Body, support: _Body, start: float) -> float:
+    """The highest point of ``support``'s surface straight under ``child``'s footprint (its outline seen from
+    above), hit by rays cast down from height ``start``; -inf when none is hit."""
+    import trimesh
+    from scipy.spatial import Delaunay, QhullError
+
+    c = child.world()[0]
+    lo, hi = c[:, :2].min(axis=0), c[:, :2].max(axis=0)
+    xs, ys = np.meshgrid(np.linspace(lo[0], hi[0], 11)[1:-1], np.linspace(lo[1], hi[1], 11)[1:-1])
+    grid = np.column_stack([xs.ravel(), ys.ravel()])
+    try:
+        grid = grid[Delaunay(c[:, :2]).find_simplex(grid) >= 0]  # inside the outline (not a round base's corners)
+    except QhullError:
+        return -np.inf
+    if len(grid) == 0:
+        return -np.inf
+    origins = np.column_stack([grid, np.full(len(grid), start)])
+    hits, _, _ = trimesh.Trimesh(*support.world(), process=False).ray.intersects_location(
+        origins, np.tile([0.0, 0.0, -1.0], (len(origins), 1)), multiple_hits=False)  # fmt: skip
+    return float(np.asarray(hits, float).reshape(-1, 3)[:, 2].max()) if len(hits) else -np.inf
 
 
 def _filled_up_to(body: _Body, lo: np.ndarray, hi: np.ndarray, depth: float, edit: str) -> _Body:
