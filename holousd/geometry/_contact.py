@@ -136,9 +136,10 @@ class Overlap:
     """[3] unit direction along which the intersection is thinnest (None when there is none)."""
 
 
-def overlap(a: Mesh, b: Mesh, *, min_volume: float = 1e-9) -> Overlap:
+def overlap(a: Mesh, b: Mesh, *, min_volume: float = 1e-9, above: float | None = None) -> Overlap:
     """The intersection of two closed meshes (manifold3d); zero when either is not a closed manifold or the
-    intersection is smaller than ``min_volume`` (m^3; 0.001 cm^3: the slivers two faces that touch leave)."""
+    intersection is smaller than ``min_volume`` (m^3; 0.001 cm^3: the slivers two faces that touch leave).
+    With ``above`` (a height, metres), only what of the intersection lies higher counts."""
     none = Overlap(volume_m3=0.0, depth_m=0.0, lo=np.zeros(3), hi=np.zeros(3))
     pa, pb = np.asarray(a[0]), np.asarray(b[0])
     if len(pa) == 0 or len(pb) == 0 or np.any(pa.min(0) > pb.max(0)) or np.any(pb.min(0) > pa.max(0)):
@@ -147,6 +148,8 @@ def overlap(a: Mesh, b: Mesh, *, min_volume: float = 1e-9) -> Overlap:
     if sa is None or sb is None:
         return none
     both = sa ^ sb
+    if above is not None and not both.is_empty():
+        both = both.trim_by_plane((0.0, 0.0, 1.0), float(above))
     if both.is_empty() or both.volume() < min_volume:
         return none
     box = np.asarray(both.bounding_box(), float).reshape(2, 3)
