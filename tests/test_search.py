@@ -97,6 +97,33 @@ def test_revisit_changes_the_parents_choice_when_no_child_candidate_stands() -> 
     assert kid.best.stable == 0.0 and kid.best.total == pytest.approx(0.1 + cfg.w_touch * kid.best.touch_cm)
 
 
+def test_a_base_sunk_into_its_support_is_touch_and_legs_sunk_unevenly_into_the_floor_stand() -> None:
+    """E_pene leaves out a base sunk into its parent within ``parent_band`` (E_touch measures it, the set-up cuts
+    it flat): 3 mm of a book over its footprint outweighed every other term and the search chose worse shapes.
+    Deeper, and into a neighbour, it counts. On the floor a candidate is checked as the set-up cuts it: the fit
+    sinks legs unevenly, and the deepest alone is no stand."""
+    from holousd.geometry._contact import overlap
+
+    scorer = _search._Scorer(_search.SearchConfig(), 0.0)
+    table = _mesh(*_box((-0.3, -0.3, 0.0), (0.3, 0.3, 0.5)))
+    sunk = _mesh(*_box((-0.1, -0.1, 0.497), (0.1, 0.1, 0.53)))  # 3 mm into the top
+    stable, touch, pene = scorer.physics(sunk, "table", table, {"table": table})
+    assert stable == 0.0 and pene == 0.0 and touch == pytest.approx(0.3, abs=0.05)
+    deep = _mesh(*_box((-0.1, -0.1, 0.47), (0.1, 0.1, 0.53)))  # 3 cm in: 1.5 cm of it above the band
+    _, _, pene = scorer.physics(deep, "table", table, {"table": table})
+    assert pene == pytest.approx(0.2 * 0.2 * 0.015 * 1e6, rel=0.05)
+    beside = _mesh(*_box((0.09, -0.1, 0.5), (0.2, 0.1, 0.6)))  # a neighbour 1 cm into it: all of it counts
+    _, _, pene = scorer.physics(deep, "table", table, {"table": table, "box": beside})
+    full = overlap((deep.points, deep.faces), (beside.points, beside.faces)).volume_m3 * 1e6
+    assert full > 0 and pene == pytest.approx(0.2 * 0.2 * 0.015 * 1e6 + full, rel=0.05)
+    legs = [_box((x, y, z), (x + 0.05, y + 0.05, 0.45)) for x, y, z in ((-0.3, -0.3, -0.01), (0.25, -0.3, -0.02),
+                                                                        (-0.3, 0.25, -0.005), (0.25, 0.25, -0.04))]
+    table = trimesh.boolean.union([trimesh.Trimesh(*_box((-0.3, -0.3, 0.44), (0.3, 0.3, 0.5)))]
+                                  + [trimesh.Trimesh(*leg) for leg in legs], engine="manifold")  # fmt: skip
+    stable, _, _ = scorer.physics(_mesh(np.asarray(table.vertices), np.asarray(table.faces)), "background", None, {})
+    assert stable == 0.0
+
+
 @pytest.fixture(scope="module")
 def fitted(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     out = tmp_path_factory.mktemp("search")
