@@ -323,9 +323,10 @@ class PrimitiveProposer:
 
 
 class VisualHullProposer:
-    """Space carving from every frame: a voxel stays unless some frame saw through it (background, or depth
-    beyond it by more than ``margin``) where it projects; voxels behind other objects' surfaces are unknown and
-    stay. Within the stage-1 shape's extent grown by ``grow`` metres, above the support."""
+    """Space carving from every frame: a voxel stays where some frame's mask shows the object and no more than
+    ``tolerance`` of the frames saw through it (background, or depth beyond it by more than ``margin``); a voxel
+    hidden behind other objects in every frame is unknown and stays where the stage-1 shape has it. Within the
+    stage-1 shape's extent grown by ``grow`` metres, above the support."""
 
     name = "visual_hull"
 
@@ -348,18 +349,25 @@ class VisualHullProposer:
         hits = np.zeros(len(world), np.int32)
         through = np.zeros(len(world), np.int32)
         seen = np.zeros(len(world), np.int32)
+        hidden = np.zeros(len(world), np.int32)
         for frame in evidence.frames:
             row, col, z, valid = _project(frame, world)
             label = frame.labels[row, col]
             seen += valid
             hits += valid & (label == evidence.instance_id)
             free = valid & (label == 0)
+            behind = valid & (label != 0) & (label != evidence.instance_id)
             if frame.depth is not None:
                 d = frame.depth[row, col]
                 measured = d > 0
                 free = valid & np.where(measured, d > z + self.margin, label == 0)
+                behind &= ~measured | (d < z - self.margin)
             through += free
-        kept = (hits > 0) & (through <= self.tolerance * np.maximum(seen, 1))
+            hidden += behind
+        # a cell hidden behind other objects in every frame that could see it is unknown: it stays where the
+        # stage-1 shape has it (a shelf's board under the book lying on it is never in the shelf's mask)
+        unknown = (hits == 0) & (hidden == seen) & _stage1_inside(evidence, local)
+        kept = ((hits > 0) | unknown) & (through <= self.tolerance * np.maximum(seen, 1))
         if floor is not None:
             kept &= local[:, 2] >= floor
         return [c for c in [_candidate(self.name, seed, kept, grid, "carved from every frame")] if c is not None][:k]
