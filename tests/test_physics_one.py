@@ -592,6 +592,23 @@ def test_legs_the_fit_ended_short_are_carried_down_to_the_floor(tmp_path: Path) 
     assert not any(e.startswith("extend") for e in rec.edits) and rec.shift_refused_m > 0.05
 
 
+def test_legs_sunk_into_the_floor_and_legs_short_of_it_all_end_on_it(tmp_path: Path) -> None:
+    """Feet are measured from the floor, not from the deepest foot: two legs sunk 1 cm into it and two ending
+    1.8 cm above it, 2.8 cm apart, all end on it (hard/stack's table stood on two legs and rocked 2.6 deg, and
+    everything on it moved 4 cm)."""
+    legs = [((-0.3, -0.2), -0.01), ((0.25, -0.2), -0.01), ((-0.3, 0.15), 0.018), ((0.25, 0.15), 0.018)]
+    table = _union(_box((-0.3, -0.2, 0.5), (0.3, 0.2, 0.54)),
+                   *(_box((x, y, z), (x + 0.05, y + 0.05, 0.5)) for (x, y), z in legs))  # fmt: skip
+    scene = _scene(tmp_path, {"table": table})
+    _with_sdf(scene, "table", 0.025)
+    (rec,) = setup_physics(scene, PhysicsSetupConfig()).objects
+    assert any(e.startswith("extend:base:2x") for e in rec.edits), rec.edits
+    world = _world(scene, "table")
+    for (x, y), _ in legs:
+        foot = world[(np.abs(world[:, 0] - x - 0.025) < 0.03) & (np.abs(world[:, 1] - y - 0.025) < 0.03)]
+        assert foot[:, 2].min() == pytest.approx(0.001, abs=1e-5), (x, y, foot[:, 2].min())
+
+
 def test_a_closed_mesh_stays_closed_when_its_slivers_cannot_go(monkeypatch: pytest.MonkeyPatch) -> None:
     """Removing a closed mesh's zero-area faces must not open it: an open mesh gets no decomposition, and its
     convex hull (50 cm outside the demo's table) became its collider. Where the removal would open it, the

@@ -385,7 +385,8 @@ def _rest(bodies: dict[str, _Body], relations: Relations, room: tuple[np.ndarray
         cell = body.sdf.voxel_size if body.sdf is not None else 0.0  # what the fit could not resolve
         if cell > 0 and float(out[name].world()[0][:, 2].min()) - base <= min(config.max_extend, cell):
             # on its support but for a cell or less: feet the fit ended short are carried down onto it
-            extended = _extend_down(replace(out[name], refused=0.0), base - depth, min(config.max_extend, cell))
+            extended = _extend_down(replace(out[name], refused=0.0), base - depth, min(config.max_extend, cell),
+                                    surface=base)  # fmt: skip
             if extended is not None:
                 body = extended.cut(up, base, "cut:base")
                 if not _closed(_drop_degenerate(body.mesh)):  # the base cut left what cannot be mended: as seen
@@ -396,13 +397,14 @@ def _rest(bodies: dict[str, _Body], relations: Relations, room: tuple[np.ndarray
     return out
 
 
-def _extend_down(body: _Body, target: float, reach: float) -> _Body | None:
+def _extend_down(body: _Body, target: float, reach: float, surface: float | None = None) -> _Body | None:
     """The body with each of its feet carried straight down to height ``target`` (world), in its mesh and SDF.
 
-    Feet are the pieces of the solid lying less than ``reach`` above its lowest point (the ends of legs the fit
-    ended at different heights, a base); each whose bottom lies above ``target`` gets the convex hull of itself and
-    its shadow at ``target`` united with the mesh. None when nothing is to be carried down or the mesh is not a
-    closed manifold."""
+    Feet are the pieces of the solid lying less than ``reach`` above its lowest point, or above ``surface`` (the
+    support's) where that lies higher: the ends of legs the fit ended at different heights, some sunk into the
+    floor and some short of it (hard/stack's table stood on two legs, the other two 1.7 cm up, and rocked), a
+    base. Each whose bottom lies above ``target`` gets the convex hull of itself and its shadow at ``target``
+    united with the mesh. None when nothing is to be carried down or the mesh is not a closed manifold."""
     from scipy.spatial import ConvexHull, QhullError
 
     from holousd.geometry._contact import _mesh, _solid
@@ -410,7 +412,7 @@ def _extend_down(body: _Body, target: float, reach: float) -> _Body | None:
     world = _solid(body.world())
     if world is None:
         return None
-    bottom = float(body.world()[0][:, 2].min())
+    bottom = max(float(body.world()[0][:, 2].min()), -np.inf if surface is None else surface)
     near = world.trim_by_plane((0.0, 0.0, -1.0), -(bottom + reach))  # keeps z <= bottom + reach
     inverse = np.linalg.inv(body.pose.matrix())
     parts, longest = [], 0.0
