@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from holousd._errors import HolousdError
-from holousd.geometry._grid import FusionResult, VoxelGrid, sample_grid
+from holousd.geometry._grid import VoxelGrid, sample_grid
 from holousd.io import Observations
 from holousd.stages import _fit, _observe
 from holousd.usd import SceneGraph
@@ -362,24 +362,3 @@ def test_a_top_under_what_stands_on_it_stays_level(tmp_path: Path) -> None:
                                                   multiple_hits=False)  # fmt: skip
     assert len(rays) == len(origins)
     assert hits[:, 2].min() > 0.297 and hits[:, 2].max() < 0.312, np.round(hits[:, 2], 3)
-
-
-def test_a_boards_top_under_what_lies_on_it_is_solid_and_a_compartment_behind_a_bowl_open() -> None:
-    """Voxels no frame observed (hidden behind other objects) are solid where the object's observed solid walls
-    them in on all four horizontal sides of their slice: a shelf's board under a book, its front edge seen, though
-    boards lie above it (the hard shelf's bottom board had a hole under its book, and the book fell in). The back
-    of a compartment behind a bowl, open at its front, stays open."""
-    shape = (12, 10, 12)
-    x, y, z = np.meshgrid(*(np.arange(n) for n in shape), indexing="ij")
-    solid = (x == 0) | (x == 11) | (y == 9) | (z <= 1) | (z == 11)  # side panels, back, bottom and top boards
-    book = (x >= 3) & (x <= 8) & (y >= 3) & (y <= 7) & (z == 1)  # the board's top layer under a book
-    bowl = (x >= 3) & (x <= 8) & (y >= 5) & (y <= 8) & (z >= 4) & (z <= 7)  # behind a bowl
-    unseen = book | bowl
-    trunc = 0.02
-    fused = FusionResult(tsdf=np.where(solid, -trunc, trunc).astype(np.float32).ravel(),
-                         weight=np.where(unseen, 0.0, 1.0).astype(np.float32).ravel(),
-                         inside=np.zeros(x.size, np.int32), outside=np.zeros(x.size, np.int32),
-                         free=np.where(solid | unseen, 0, 1).astype(np.int32).ravel())  # fmt: skip
-    sdf = fused.solid_sdf(trunc, shape).reshape(shape)
-    assert np.all(sdf[book] < 0)  # the board under the book
-    assert np.all(sdf[bowl] > 0)  # the compartment behind the bowl

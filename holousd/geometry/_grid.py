@@ -165,9 +165,9 @@ class FusionResult:
           instance's lowest point by more than ``keep`` voxels: it stood on what was opened (a ball's unseen underside
           above the floor it rests on; a table none of whose legs was seen);
         - voxels no frame observed at all (hidden behind other objects: a table top under the book lying on
-          it) are inside where the instance's observed solid walls them in on all four horizontal sides in
-          their slice (a shelf's board under a book, its front edge seen), or on three with none of it above
-          them (the back of a shelf's compartment behind a bowl, open at its front, stays open)."""
+          it) are inside where the instance's observed solid walls them in on three of their four horizontal
+          sides, in their slice, and none of it lies above them (the back of a shelf's compartment behind a bowl
+          stays open)."""
         hidden_inside = (self.weight == 0) & (self.inside > 0) & (self.outside == 0)
         sdf = np.where(self.weight > 0, self.tsdf, trunc).astype(np.float32)
         if shape is None or self.free is None:
@@ -177,12 +177,11 @@ class FusionResult:
 
         observed = ((self.weight > 0) & (self.tsdf < 0)).reshape(shape)
         # never observed at all (behind other objects in every frame that looks there), walled in by the
-        # observed solid on all four horizontal sides in its slice (a shelf's board under the book lying on it,
-        # its front edge seen), or on three with none of it above (the top of a table under a book lying on it;
-        # not the back of a shelf's compartment behind a bowl, open at its front)
+        # observed solid on three of four horizontal sides in its slice, with none of it above (the top of a
+        # table under a book lying on it; not the back of a shelf's compartment behind a bowl)
         walls = sum(_reaches(observed, axis, step).astype(np.int8) for axis in (0, 1) for step in (1, -1))
         unseen = ((self.weight == 0) & (self.outside == 0) & (self.inside == 0)).reshape(shape)
-        unseen &= (walls >= 4) | ((walls >= 3) & ~_reaches(observed, 2, 1))
+        unseen &= (walls >= 3) & ~_reaches(observed, 2, 1)
         solid = observed | unseen
         over = _reaches(solid, 2, 1)  # solid at or above, in the voxel's column
         held = (distance_transform_edt(~solid) <= keep) | (over & _reaches(solid, 2, -1))
