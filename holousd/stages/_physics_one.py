@@ -486,7 +486,8 @@ def _flatten_top(parent: _Body, children: list[_Body], config: PhysicsSetupConfi
             continue
         bottom = float(child.world()[0][:, 2].min())
         # the support's surface under the child's edge, where the child's underside rides up over a bump (its
-        # bottom band does not reach there), is the child's too: cut flat with the rest, up to top_depth higher
+        # bottom band does not reach there), is the child's too: cut flat with the rest, up to twice top_depth
+        # above the child's bottom
         highest = max(float(hits[:, 2].max()), _top_under(child, body, bottom + 2 * config.top_depth))
         # the lowest of the surface under the child (robust to a stray dent), no deeper than the child can follow
         # (half the largest move: its own base cut takes the rest)
