@@ -304,18 +304,24 @@ def _clip(bodies: dict[str, _Body], walls: list[Wall], clearance: float) -> dict
 def _hits_below(body: _Body, support: tuple[np.ndarray, np.ndarray], band: float) -> np.ndarray:
     """[K, 3] first points of ``support`` below the body's lowest points (within ``band`` of its bottom), hit
     by rays cast straight down."""
-    from trimesh.ray.ray_triangle import RayMeshIntersector
-
-    from holousd.graph._relations import _trimesh
-
     points = body.world()[0]
     bottom = float(points[:, 2].min())
     low = points[points[:, 2] <= bottom + band]
     origins = low.copy()
     origins[:, 2] = min(float(points[:, 2].max()), bottom + band + 0.02)  # below a board above the body
-    hits, _, _ = RayMeshIntersector(_trimesh(support)).intersects_location(
+    return _first_hits_down(support, origins)[0]
+
+
+def _first_hits_down(mesh: tuple[np.ndarray, np.ndarray], origins: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """([K, 3] first points of ``mesh`` (world) hit by rays cast straight down from ``origins``, [K] the index of
+    the ray each came from)."""
+    from trimesh.ray.ray_triangle import RayMeshIntersector
+
+    from holousd.graph._relations import _trimesh
+
+    hits, rays, _ = RayMeshIntersector(_trimesh(mesh)).intersects_location(
         origins, np.tile([0.0, 0.0, -1.0], (len(origins), 1)), multiple_hits=False)  # fmt: skip
-    return np.asarray(hits, float).reshape(-1, 3)
+    return np.asarray(hits, float).reshape(-1, 3), np.asarray(rays, int)
 
 
 def _support_height(body: _Body, support: tuple[np.ndarray, np.ndarray] | float, band: float) -> float | None:
@@ -509,7 +515,6 @@ def _flatten_top(parent: _Body, children: list[_Body], config: PhysicsSetupConfi
 def _top_under(child: _Body, support: _Body, start: float) -> float:
     """The highest point of ``support``'s surface straight under ``child``'s footprint (its outline seen from
     above), hit by rays cast down from height ``start``; -inf when none is hit."""
-    import trimesh
     from scipy.spatial import Delaunay, QhullError
 
     c = child.world()[0]
@@ -522,10 +527,8 @@ def _top_under(child: _Body, support: _Body, start: float) -> float:
         return -np.inf
     if len(grid) == 0:
         return -np.inf
-    origins = np.column_stack([grid, np.full(len(grid), start)])
-    hits, _, _ = trimesh.Trimesh(*support.world(), process=False).ray.intersects_location(
-        origins, np.tile([0.0, 0.0, -1.0], (len(origins), 1)), multiple_hits=False)  # fmt: skip
-    return float(np.asarray(hits, float).reshape(-1, 3)[:, 2].max()) if len(hits) else -np.inf
+    hits = _first_hits_down(support.world(), np.column_stack([grid, np.full(len(grid), start)]))[0]
+    return float(hits[:, 2].max()) if len(hits) else -np.inf
 
 
 def _filled_up_to(body: _Body, lo: np.ndarray, hi: np.ndarray, depth: float, edit: str) -> _Body:
@@ -534,16 +537,13 @@ def _filled_up_to(body: _Body, lo: np.ndarray, hi: np.ndarray, depth: float, edi
     never under it, and a convex part of the support spans those dents at the surface's height anyway. Only
     where all of the box's footprint lies on the support, at most ``depth`` below the surface (nothing is added
     past a top's edge, nor in a hole or down a step)."""
-    import trimesh
 
     from holousd.physics import convex_hull
 
     plane = float(lo[2])
     xs, ys = np.meshgrid(np.linspace(lo[0] + 1e-3, hi[0] - 1e-3, 9), np.linspace(lo[1] + 1e-3, hi[1] - 1e-3, 9))
     origins = np.column_stack([xs.ravel(), ys.ravel(), np.full(xs.size, plane + 0.01)])
-    support = trimesh.Trimesh(*body.world(), process=False)
-    hits, rays, _ = support.ray.intersects_location(origins, np.tile([0.0, 0.0, -1.0], (len(origins), 1)),
-                                                    multiple_hits=False)  # fmt: skip
+    hits, rays = _first_hits_down(body.world(), origins)
     if len(rays) < len(origins) or hits[:, 2].min() < plane - depth:  # past an edge, over a hole or a step
         return body
     deepest = float(hits[:, 2].min())
