@@ -682,6 +682,26 @@ def test_a_bump_under_a_childs_edge_is_cut_with_the_rest_of_its_patch(tmp_path: 
     assert worst < 1e-7, worst
 
 
+@pytest.mark.parametrize("margin", [0.0, 0.1])
+def test_a_base_is_cut_deep_enough_to_hold_the_centre_of_mass(margin: float, tmp_path: Path) -> None:
+    """hard/small_beside_large's fitted 5 cm cube: its lowest 2 mm span more than half its width along x and y,
+    as a triangle the centre of mass stands outside of; a base cut that shallow tipped it 30 degrees."""
+    from holousd.physics._static import _polygon_margin
+
+    ring = [(x, y, 0.012) for x in (-0.025, 0.025) for y in (-0.025, 0.025)]
+    top = [(x, y, 0.045) for x in (-0.025, 0.025) for y in (-0.025, 0.025)]
+    blob = trimesh.convex.convex_hull([(-0.006, -0.021, 0.0), (0.026, -0.007, 0.0), (0.017, 0.018, 0.0), *ring, *top])
+    scene = _scene(tmp_path, {"cube": (np.asarray(blob.vertices, float), np.asarray(blob.faces))})
+    (rec,) = setup_physics(scene, PhysicsSetupConfig(base_margin=margin)).objects
+    points, faces = _world_mesh(scene, "cube")
+    base = points[points[:, 2] <= points[:, 2].min() + 5e-4, :2]
+    inside = _polygon_margin(base, mass_properties((points, faces), 1.0).center_of_mass[:2])
+    if margin == 0.0:  # half the width along x and y: the old rule
+        assert inside < 0.0
+    else:
+        assert inside >= 0.1 * 0.05 - 5e-4 and "cut:base" in rec.edits
+
+
 def test_parts_of_a_piece_the_trim_drops_go_with_it(monkeypatch: pytest.MonkeyPatch) -> None:
     """What of a mesh no collider part covers is trimmed from it; a piece joined to the rest only through such
     a sliver (under 1% of the volume) goes with it, and so must the parts that covered it: left, they stood in
@@ -700,3 +720,30 @@ def test_parts_of_a_piece_the_trim_drops_go_with_it(monkeypatch: pytest.MonkeyPa
     assert kind == "decomposition" and any(e.startswith("trim:uncovered") for e in shaped.edits)
     assert shaped.mesh.points[:, 2].max() == pytest.approx(0.1)  # the column went with the neck
     assert len(parts) == 1 and reach == pytest.approx(0.005, abs=1e-3)
+
+
+def test_colliders_still_overlapping_are_clipped_apart_and_the_mesh_follows() -> None:
+    """hard/touching_siblings: the box's decomposition spent its parts on its bumps and kept a hull 1.1 mm into
+    the book beside it; XPBD resolved the overlap at the first step as a velocity and threw the book 2 cm."""
+    from holousd.stages._physics_one import _Body, _penetration, _unclasped, _world_parts
+
+    def body(name: str, mesh: tuple, part: tuple) -> _Body:
+        pose = Pose(translation=np.zeros(3))
+        return _Body(name=name, mesh=MeshData(points=mesh[0], faces=mesh[1]), sdf=None, pose=pose, fit_pose=pose,
+                     collider=("hull", [MeshData(points=part[0], faces=part[1])], 0.0))  # fmt: skip
+
+    book = _box((0.0, 0.0, 0.0), (0.1, 0.2, 0.03))
+    box = _box((0.1005, 0.0, 0.0), (0.2, 0.2, 0.1))
+    bodies = {"book": body("book", book, book),
+              "box": body("box", box, _box((0.099, 0.0, 0.0), (0.2, 0.2, 0.1)))}  # its hull 1 mm into the book
+    assert _penetration("book", bodies, []) == pytest.approx(0.001, abs=1e-4)
+    out = _unclasped(bodies, PhysicsSetupConfig())
+    (a,), (b,) = _world_parts(out["book"]), _world_parts(out["box"])
+    assert overlap(a, b).volume_m3 == 0.0 and _penetration("book", out, []) == 0.0
+    assert "clip:collider:book" in out["box"].edits and out["book"].edits == ()  # the box's part lost least
+    assert b[0][:, 0].min() == pytest.approx(0.1002, abs=1e-6)  # 0.2 mm off the book's face
+    assert np.allclose(out["box"].mesh.points, box[0])  # no mesh lay in the piece cut off
+    # an overlap deeper than hull_tolerance is the meshes' business: left, and recorded
+    deep = {"book": body("book", book, book), "box": body("box", box, _box((0.09, 0.0, 0.0), (0.2, 0.2, 0.1)))}
+    kept = _unclasped(deep, PhysicsSetupConfig())
+    assert _penetration("box", kept, []) == pytest.approx(0.01, abs=2e-4) and kept["box"].edits == ()

@@ -15,11 +15,12 @@ objects:
    top is a bumpy dome of facets; a wall beside stays);
    the support's shape is then settled (pass 5) with its decomposition cut along those flat surfaces. Then the
    child's unseen underside is cut flat, ``clearance`` above the higher of the support's mesh and collider under
-   it (deep enough for a base spanning half its width, ``base_depth``), the object moved down when it floats
-   above, by at most ``max_shift`` from its fitted pose counting its parent's moves (when that brings it onto
-   its support, its base is cut less deep; an object that cannot reach its support is left where it was seen,
-   and the refused move recorded). Whatever of the support's collider still lies inside the child is cut away
-   from the child's mesh and SDF. Children follow their parent's moves.
+   it (and under its whole footprint, where its lowest points hang over a lower edge), deep enough for a base
+   spanning half its width with the centre of mass over it (``base_depth``, ``base_margin``), the object moved
+   down when it floats above, by at most ``max_shift`` from its fitted pose counting its parent's moves (when
+   that brings it onto its support, its base is cut less deep; an object that cannot reach its support is left
+   where it was seen, and the refused move recorded). Whatever of the support's collider still lies inside the
+   child is cut away from the child's mesh and SDF. Children follow their parent's moves.
 4. ``separate``: neighbours whose meshes still overlap are cut apart at the middle of the overlap, across its
    thinnest axis, as two real objects meet at one face.
 5. ``shape``: the convex hull of the mesh is the collider when it reaches at most ``hull_tolerance`` outside
@@ -33,11 +34,15 @@ objects:
    it is, and is recorded, and what of the mesh no part covers (slivers the cuts dropped) is cut from the mesh
    and SDF, so that a simulator meets all of the rendered solid. A support is shaped before its children are set
    on it, keeping out of them (where the fit left them) and of what stands around it, with
-   ``support_keep_out_parts`` more parts for that.
-6. ``mass``: mass, centre of mass and inertia (principal moments and axes) of the final mesh at ``density``.
+   ``support_keep_out_parts`` more parts for that (``keep_out_parts`` for the others).
+6. ``unclasp``: parts of two colliders that still overlap (hulls reaching past their meshes into a neighbour, at
+   most ``hull_tolerance`` deep) are clipped apart by a plane of one's faces, and what of the clipped body's
+   mesh lay in the piece cut off goes with it (``clip:collider:<other>``).
+7. ``mass``: mass, centre of mass and inertia (principal moments and axes) of the final mesh at ``density``.
 
 Each object records (``HoloGeometryAPI``): its shift from the pose the fit gave (``holo:geometry:fitShift``), its
-collider's reach outside the mesh, its deepest penetration into another node, its volume and the edits made.
+collider's reach outside the mesh, its deepest penetration into another node (mesh into mesh or slab, collider
+into collider), its volume and the edits made.
 No collider-only edit is made: where the rendered geometry cannot stand, the stability verdict says so.
 
 The room's static collider is a set of floor and wall slabs fitted to the background mesh's planes (walls of any
@@ -106,9 +111,15 @@ class PhysicsSetupConfig:
     above. False: meshes and poses stay as fitted (but for the wall clip)."""
     base_depth: tuple[float, float] = (0.5, 0.008)
     """How an object's underside is cut flat: ``(share, deepest)``: deep enough that the flat base spans
-    ``share`` of the object's width along x and y, at most ``deepest`` metres (nothing for a flat base). The
-    underside of an object resting on something is never observed; the fit leaves it rounded by about a voxel,
-    and a rounded base rocks or rolls (the protocol has no damping) where the real object stands."""
+    ``share`` of the object's width along x and y and holds the centre of mass ``base_margin`` inside it, at
+    most ``deepest`` metres (nothing for a flat base). The underside of an object resting on something is never
+    observed; the fit leaves it rounded by about a voxel, and a rounded base rocks or rolls (the protocol has no
+    damping) where the real object stands."""
+    base_margin: float = 0.1
+    """Least distance of the centre of mass inside the flat base cut under an object, as a share of the object's
+    smaller width (0.1: a cube tips past 11 degrees). Half the width along x and y is not enough: the fitted
+    5 cm cube of hard/small_beside_large had its lowest 2 mm spanning 3.2 x 4 cm as a triangle with its centre of
+    mass 1.2 mm outside, and it tipped onto a facet 30 degrees over in both simulators."""
     top_depth: float = 0.015
     """Deepest flattening of the top of a support that others rest on, below its highest point, metres: a
     fitted top is a bumpy dome of facets (a centimetre or two on 160x120 captures); a child set on it rocks, and
@@ -137,6 +148,11 @@ class PhysicsSetupConfig:
     """Further parts a support's plane decomposition may cut to keep its hulls out of what rests on it and
     stands around it (a fitted shelf's 32 parts spent on its bumps leave a hull spanning a compartment and the
     objects standing in it, which the simulators throw)."""
+    keep_out_parts: int = 16
+    """Further parts any other object's plane decomposition may cut to keep its hulls out of the colliders shaped
+    before it (neighbours, in name order). Without them, hard/touching_siblings' box spent its 32 parts on its
+    own bumps and kept a hull 1.1 mm into the book beside it: Newton's XPBD resolves an overlap at the first
+    step as a velocity, and threw the book 2 cm (MuJoCo's soft contact did not)."""
     decomposition: str = "planes"
     """'planes': :func:`holousd.geometry.plane_decomposition` (plane cuts until each piece lies within
     ``hull_tolerance`` of its hull: fitted furniture is slabs and posts); 'coacd': CoACD with the quick settings
@@ -275,15 +291,30 @@ def _grid_points(sdf: SdfField) -> np.ndarray:
     return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
 
 
-def _base_depth(points: np.ndarray, limits: tuple[float, float]) -> float:
-    """How deep to cut a body's underside flat: the least depth (up to ``limits[1]``) at which its lowest points
-    span ``limits[0]`` of its width along x and along y (0 for a flat base: nothing needs cutting)."""
+def _base_depth(mesh: tuple[np.ndarray, np.ndarray], limits: tuple[float, float], margin: float = 0.0) -> float:
+    """How deep to cut a body's underside flat (world ``mesh``): the least depth (up to ``limits[1]``) at which
+    the base the cut leaves spans ``limits[0]`` of its width along x and along y and holds the vertical through
+    its centre of mass ``margin`` times its smaller width inside (0 for a flat base: nothing needs cutting)."""
+    from holousd.physics._static import _polygon_margin
+
+    points, faces = mesh
     share, deepest = limits
     bottom = float(points[:, 2].min())
     width = np.maximum(np.ptp(points[:, :2], axis=0), 1e-9)
+    centre = mass_properties(mesh, 1.0).center_of_mass[:2] if margin > 0 else None
+    edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    a, b = points[edges[:, 0]], points[edges[:, 1]]
     for depth in np.linspace(0.0, deepest, 17):
-        low = points[points[:, 2] <= bottom + depth + 1e-9, :2]
-        if np.all(np.ptp(low, axis=0) >= share * width):
+        level = bottom + depth + 1e-9
+        low = points[points[:, 2] <= level, :2]
+        if not np.all(np.ptp(low, axis=0) >= share * width):
+            continue
+        if centre is None:
+            return float(depth)
+        crossing = (a[:, 2] <= level) & (b[:, 2] > level)  # where the cut meets the edges: the base's outline
+        t = (level - a[crossing, 2]) / (b[crossing, 2] - a[crossing, 2])
+        outline = np.concatenate([low, a[crossing, :2] + t[:, None] * (b[crossing, :2] - a[crossing, :2])])
+        if _polygon_margin(outline, centre) >= margin * float(width.min()):
             return float(depth)
     return float(deepest)
 
@@ -367,8 +398,17 @@ def _rest(bodies: dict[str, _Body], relations: Relations, room: tuple[np.ndarray
         height = max(heights)  # on the support's mesh, and on its collider where that stands higher
         points = body.world()[0]
         bottom = float(points[:, 2].min())
+        if support_parts:
+            # the flat top under the whole footprint, where the child's lowest points hang over a lower edge
+            # (hard/thin's book overhung the table's bevelled edge: it dipped 3 mm below the top cut flat under
+            # the rest of it, its base was cut there, and its hull overlapped the top and pushed it off)
+            start = bottom + 2 * config.top_depth
+            parts = _concatenated(support_parts)
+            top = max(_top_under(body, surface, start), _top_under(body, parts, start))
+            if height < top <= height + config.top_depth:
+                height = top
         base = height + config.clearance
-        depth = _base_depth(points, config.base_depth)
+        depth = _base_depth(body.world(), config.base_depth, config.base_margin)
         drop = (base - depth) - bottom  # < 0: move down so that the underside is cut `depth` deep
         step = 0.0
         if drop < 0:
@@ -494,7 +534,7 @@ def _flatten_top(parent: _Body, children: list[_Body], config: PhysicsSetupConfi
         # the support's surface under the child's edge, where the child's underside rides up over a bump (its
         # bottom band does not reach there), is the child's too: cut flat with the rest, up to twice top_depth
         # above the child's bottom
-        highest = max(float(hits[:, 2].max()), _top_under(child, body, bottom + 2 * config.top_depth))
+        highest = max(float(hits[:, 2].max()), _top_under(child, body.world(), bottom + 2 * config.top_depth))
         # the lowest of the surface under the child (robust to a stray dent), no deeper than the child can follow
         # (half the largest move: its own base cut takes the rest)
         plane = max(float(np.percentile(hits[:, 2], 10)), highest - config.top_depth, bottom - config.max_shift / 2)
@@ -512,9 +552,16 @@ def _flatten_top(parent: _Body, children: list[_Body], config: PhysicsSetupConfi
     return body
 
 
-def _top_under(child: _Body, support: _Body, start: float) -> float:
-    """The highest point of ``support``'s surface straight under ``child``'s footprint (its outline seen from
-    above), hit by rays cast down from height ``start``; -inf when none is hit."""
+def _concatenated(meshes: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    """Meshes ``(points, faces)`` as one (a collider's parts, for ray casts)."""
+    offsets = np.cumsum([0, *(len(p) for p, _ in meshes[:-1])])
+    return (np.concatenate([np.asarray(p, float) for p, _ in meshes]),
+            np.concatenate([np.asarray(f, np.int64) + o for (_, f), o in zip(meshes, offsets, strict=True)]))
+
+
+def _top_under(child: _Body, support: tuple[np.ndarray, np.ndarray], start: float) -> float:
+    """The highest point of the surface of ``support`` (a world mesh) straight under ``child``'s footprint (its
+    outline seen from above), hit by rays cast down from height ``start``; -inf when none is hit."""
     from scipy.spatial import Delaunay, QhullError
 
     c = child.world()[0]
@@ -527,7 +574,7 @@ def _top_under(child: _Body, support: _Body, start: float) -> float:
         return -np.inf
     if len(grid) == 0:
         return -np.inf
-    hits = _first_hits_down(support.world(), np.column_stack([grid, np.full(len(grid), start)]))[0]
+    hits = _first_hits_down(support, np.column_stack([grid, np.full(len(grid), start)]))[0]
     return float(hits[:, 2].max()) if len(hits) else -np.inf
 
 
@@ -718,11 +765,109 @@ def _drop_degenerate(mesh: MeshData) -> MeshData:
 
 
 def _penetration(name: str, bodies: dict[str, _Body], slabs: list[MeshData]) -> float:
-    """Deepest overlap of a body's mesh with any other body's mesh or room slab, metres."""
+    """Deepest overlap of a body's mesh with any other body's mesh or room slab, or of its collider with any
+    other body's collider, metres."""
     own = bodies[name].world()
     depths = [overlap(own, other.world()).depth_m for key, other in bodies.items() if key != name]
     depths += [overlap(own, (s.points, s.faces)).depth_m for s in slabs]
+    parts = _world_parts(bodies[name])
+    for key, other in bodies.items():
+        if key != name and _colliders_meet(bodies[name], other):
+            depths += [overlap(p, q).depth_m for p in parts for q in _world_parts(other)]
     return float(max(depths, default=0.0))
+
+
+def _world_parts(body: _Body) -> list[tuple[np.ndarray, np.ndarray]]:
+    return [(body.pose.apply(p.points), p.faces) for p in body.collider[1]] if body.collider is not None else []
+
+
+def _colliders_meet(a: _Body, b: _Body) -> bool:
+    """The bounding boxes of two bodies' colliders meet (False while either has none)."""
+    pa, pb = _world_parts(a), _world_parts(b)
+    if not pa or not pb:
+        return False
+    a_points, b_points = np.concatenate([p for p, _ in pa]), np.concatenate([p for p, _ in pb])
+    return not (np.any(a_points.min(0) > b_points.max(0)) or np.any(b_points.min(0) > a_points.max(0)))
+
+
+def _unclasped(bodies: dict[str, _Body], config: PhysicsSetupConfig) -> dict[str, _Body]:
+    """Colliders that still overlap, at most ``hull_tolerance`` deep, clipped apart: of each pair of overlapping
+    convex parts, one is cut by a plane of the other's faces, 0.2 mm off it (a convex part cut by a plane stays
+    convex), the one whose body's mesh loses least (:func:`_clipped_apart`). Such overlaps are hulls reaching past
+    their meshes into a neighbour where its decomposition could not keep out; deeper ones are overlaps of the
+    meshes, the mesh edits' business. Newton's XPBD resolves an overlap at the first step as a velocity:
+    hard/touching_siblings' box kept a hull 1.1 mm into the book beside it, and the book was thrown 2 cm."""
+    out = dict(bodies)
+    names = sorted(out)
+    for i, a in enumerate(names):
+        for b in names[i + 1:]:
+            if not _colliders_meet(out[a], out[b]):
+                continue
+            for _ in range(8):  # a few pairs of parts at most; each clip removes one overlap
+                found = _worst_overlap(out[a], out[b], config.hull_tolerance)
+                if found is None:
+                    break
+                j, k = found
+                clipped = _clipped_apart(out[a], j, out[b], k)
+                if clipped is None:
+                    break
+                out[a], out[b] = clipped
+    return out
+
+
+def _worst_overlap(a: _Body, b: _Body, deepest: float) -> tuple[int, int] | None:
+    """Indices of the pair of parts of ``a`` and ``b`` overlapping most (at most ``deepest``), or None."""
+    best, found = 0.0, None
+    pa, pb = _world_parts(a), _world_parts(b)
+    for j, p in enumerate(pa):
+        for k, q in enumerate(pb):
+            o = overlap(p, q)
+            if o.volume_m3 > best and o.depth_m <= deepest:
+                best, found = o.volume_m3, (j, k)
+    return found
+
+
+def _clipped_apart(a: _Body, j: int, b: _Body, k: int) -> tuple[_Body, _Body] | None:
+    """``a``'s part ``j`` and ``b``'s part ``k`` no longer overlapping: the one cut (either part, by a plane of the
+    other's faces) that takes the least of its body's mesh, then the least of the part; None when no cut
+    separates them."""
+    from holousd.physics import convex_hull
+
+    p, q = _world_parts(a)[j], _world_parts(b)[k]
+    options = []
+    for which, cut, other, mesh in ((0, p, q, a.world()), (1, q, p, b.world())):
+        tri = other[0][other[1]]
+        normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        length = np.linalg.norm(normals, axis=1)
+        keep = length > 1e-12
+        normals = normals[keep] / length[keep, None]
+        offsets = np.einsum("ij,ij->i", normals, tri[keep, 0])
+        flip = normals @ other[0].mean(axis=0) > offsets  # outwards: the other part on the plane's inner side
+        normals[flip], offsets[flip] = -normals[flip], -offsets[flip]
+        planes = np.unique(np.round(np.column_stack([normals, offsets]), 6), axis=0)
+        for n, d in zip(planes[:, :3], planes[:, 3], strict=True):
+            kept, removed = cut_by_plane(cut, n, d + 2e-4, min_keep=0.5)
+            if removed > 0 and overlap(kept, other).volume_m3 == 0.0:
+                lost = overlap(mesh, cut_by_plane(cut, -n, -(d + 2e-4), min_keep=0.0)[0]).volume_m3
+                options.append((lost, removed, which, kept, n, d + 2e-4))
+    if not options:
+        return None
+    _, _, which, kept, n, d = min(options, key=lambda o: o[:2])  # the rendered solid first: the hull reaching out
+    bodies = [a, b]
+    body, index = (a, j) if which == 0 else (b, k)
+    part = p if which == 0 else q
+    other = b if which == 0 else a
+    # what of the body's mesh lay in the piece cut off goes with it: its collider stays its rendered solid
+    piece = cut_by_plane(part, -n, -d, min_keep=0.0)[0]
+    kind, parts, reach = body.collider
+    trimmed = body.minus_convex([piece], f"clip:collider:{other.name}")
+    if trimmed is body:
+        trimmed = replace(body, edits=(*body.edits, f"clip:collider:{other.name}"))
+    hull = convex_hull(*kept)
+    inverse = np.linalg.inv(body.pose.matrix())
+    local = MeshData(points=hull[0] @ inverse[:3, :3].T + inverse[:3, 3], faces=hull[1])
+    bodies[which] = replace(trimmed, collider=(kind, [*parts[:index], local, *parts[index + 1:]], reach))
+    return bodies[0], bodies[1]
 
 
 # ----------------------------------------------------------------------------------------------- the stage
@@ -766,7 +911,8 @@ def setup_physics(scene: SceneGraph, config: PhysicsSetupConfig | None = None,
     if config.separate:
         bodies = _separate(bodies, relations, config)
     for name in sorted(bodies):  # one by one: each keeps out of what was shaped before it
-        bodies[name] = _shaped(bodies[name], config, _around(name, bodies))
+        bodies[name] = _shaped(bodies[name], config, _around(name, bodies), config.keep_out_parts)
+    bodies = _unclasped(bodies, config)
 
     scene.push_layer(Path(out_dir) / PHYSICS_LAYER, provenance=config.provenance, replace=True)
     material = dict(static_friction=config.friction, dynamic_friction=config.friction,
