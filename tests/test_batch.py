@@ -71,15 +71,27 @@ def test_batch_on_a_local_pool_reports_the_failure_and_a_rerun_skips_what_is_don
 
 def test_an_interrupted_batch_is_resumed(captures: list[Path], tmp_path: Path) -> None:
     out = tmp_path / "out"
-    script = (f"from holousd.batch import BatchConfig, run_batch; from tests.test_batch import _tiny; "
+    held = tmp_path / "held"  # the batch holds in room2's fit (it would finish before a busy machine stopped it)
+    script = (f"import pathlib, time\n"
+              f"import holousd.stages._fit as fit\n"
+              f"from holousd.batch import BatchConfig, run_batch\n"
+              f"from tests.test_batch import _tiny\n"
+              f"run = fit.run\n"
+              f"def holding(scene, obs, config):\n"
+              f"    if 'room2' in str(scene.path):\n"
+              f"        pathlib.Path({str(held)!r}).touch()\n"
+              f"        time.sleep(300)\n"
+              f"    return run(scene, obs, config)\n"
+              f"fit.run = holding\n"
               f"run_batch({[str(c) for c in captures]!r}, {str(out)!r}, "
-              f"BatchConfig(pipeline=_tiny(), until='fit', workers=1, progress=False))")  # fmt: skip
+              f"BatchConfig(pipeline=_tiny(), until='fit', workers=1, progress=False))\n")  # fmt: skip
     root = Path(__file__).resolve().parents[1]
     proc = subprocess.Popen([sys.executable, "-c", script], cwd=root, stderr=subprocess.DEVNULL)
     deadline = time.monotonic() + 300
-    while not (out / "room1" / "scene.usda").is_file():  # the first capture done: stop the batch in the next one
+    while not held.is_file():  # the first capture done, the second under way: stop the batch there
         assert proc.poll() is None and time.monotonic() < deadline, "the batch ended before it could be stopped"
         time.sleep(0.2)
+    assert (out / "room1" / "scene.usda").is_file()
     proc.send_signal(signal.SIGINT)
     proc.wait(timeout=120)
     assert not (out / "batch.json").exists()  # it did not get to the end
