@@ -72,7 +72,8 @@ def test_batch_on_a_local_pool_reports_the_failure_and_a_rerun_skips_what_is_don
 def test_an_interrupted_batch_is_resumed(captures: list[Path], tmp_path: Path) -> None:
     out = tmp_path / "out"
     held = tmp_path / "held"  # the batch holds in room2's fit (it would finish before a busy machine stopped it)
-    script = (f"import pathlib, time\n"
+    script = (f"import pathlib, signal, time\n"
+              f"signal.signal(signal.SIGINT, signal.default_int_handler)\n"  # a shell's background jobs ignore it
               f"import holousd.stages._fit as fit\n"
               f"from holousd.batch import BatchConfig, run_batch\n"
               f"from tests.test_batch import _tiny\n"
