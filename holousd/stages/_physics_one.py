@@ -852,17 +852,18 @@ def _clipped_apart(a: _Body, j: int, b: _Body, k: int) -> tuple[_Body, _Body] | 
                 options.append((lost, removed, which, kept, n, d + 2e-4))
     if not options:
         return None
-    _, _, which, kept, n, d = min(options, key=lambda o: o[:2])  # the rendered solid first: the hull reaching out
+    lost, _, which, kept, n, d = min(options, key=lambda o: o[:2])  # the rendered solid first: the hull reaching out
     bodies = [a, b]
     body, index = (a, j) if which == 0 else (b, k)
     part = p if which == 0 else q
     other = b if which == 0 else a
-    # what of the body's mesh lay in the piece cut off goes with it: its collider stays its rendered solid
-    piece = cut_by_plane(part, -n, -d, min_keep=0.0)[0]
+    edit = f"clip:collider:{other.name}"
     kind, parts, reach = body.collider
-    trimmed = body.minus_convex([piece], f"clip:collider:{other.name}")
-    if trimmed is body:
-        trimmed = replace(body, edits=(*body.edits, f"clip:collider:{other.name}"))
+    trimmed = replace(body, edits=(*body.edits, edit))
+    if lost > 1e-8:  # what of the body's mesh lay in the piece cut off goes with it (where the mesh stays closed)
+        cut = body.minus_convex([cut_by_plane(part, -n, -d, min_keep=0.0)[0]], edit)
+        if cut is not body and _closed(_drop_degenerate(cut.mesh)):
+            trimmed = cut
     hull = convex_hull(*kept)
     inverse = np.linalg.inv(body.pose.matrix())
     local = MeshData(points=hull[0] @ inverse[:3, :3].T + inverse[:3, 3], faces=hull[1])
