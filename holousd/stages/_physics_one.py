@@ -803,7 +803,7 @@ def _unclasped(bodies: dict[str, _Body], config: PhysicsSetupConfig) -> dict[str
         for b in names[i + 1:]:
             if not _colliders_meet(out[a], out[b]):
                 continue
-            for _ in range(8):  # a few pairs of parts at most; each clip removes one overlap
+            for _ in range(32):  # each clip removes one overlap of a pair of parts
                 found = _worst_overlap(out[a], out[b], config.hull_tolerance)
                 if found is None:
                     break
@@ -859,11 +859,12 @@ def _clipped_apart(a: _Body, j: int, b: _Body, k: int) -> tuple[_Body, _Body] | 
     other = b if which == 0 else a
     edit = f"clip:collider:{other.name}"
     kind, parts, reach = body.collider
-    trimmed = replace(body, edits=(*body.edits, edit))
+    edits = body.edits if edit in body.edits else (*body.edits, edit)  # once per neighbour
+    trimmed = replace(body, edits=edits)
     if lost > 1e-8:  # what of the body's mesh lay in the piece cut off goes with it (where the mesh stays closed)
         cut = body.minus_convex([cut_by_plane(part, -n, -d, min_keep=0.0)[0]], edit)
         if cut is not body and _closed(_drop_degenerate(cut.mesh)):
-            trimmed = cut
+            trimmed = replace(cut, edits=edits)
     hull = convex_hull(*kept)
     inverse = np.linalg.inv(body.pose.matrix())
     local = MeshData(points=hull[0] @ inverse[:3, :3].T + inverse[:3, 3], faces=hull[1])
