@@ -773,7 +773,8 @@ def _penetration(name: str, bodies: dict[str, _Body], slabs: list[MeshData]) -> 
     parts = _world_parts(bodies[name])
     for key, other in bodies.items():
         if key != name and _colliders_meet(bodies[name], other):
-            depths += [overlap(p, q).depth_m for p in parts for q in _world_parts(other)]
+            others = _world_parts(other)
+            depths += [overlap(p, q).depth_m for p in parts for q in others]
     return float(max(depths, default=0.0))
 
 
