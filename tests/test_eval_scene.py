@@ -136,8 +136,8 @@ def test_summary_table_means_over_scenes() -> None:
                "machine": {"cpu": "X", "cores": 2}, "date": "2026-11-22"}  # fmt: skip
     lines = summary_table([payload]).splitlines()
     # means over scenes; the records are the worst scene's; a run without a figure is left out of its mean
-    assert lines[2] == ("| hard | fast | 2 | 40 | 85.0 | 3.00 | 21.0 | 0.800 | 100 | 50 | 40 | 70 | 2.5 | 0.2 | 0.9 "
-                        "| 900 |")
+    assert lines[2] == ("| hard | fast | 2 | 40 | 85.0 | 3.00 | 21.0 | 0.800 | 100 | – | 50 | 40 | 70 | 2.5 | 0.2 "
+                        "| 0.9 | 900 |")  # no per-object rows: no support figure
     assert lines[-1] == "- hard: `holousd bench --suite hard` on cpu X, cores 2, 2026-11-22"
 
 

@@ -58,3 +58,30 @@ def test_meshing_closes_a_grid_cut_by_its_border_and_meets_the_budget() -> None:
     assert trimesh.Trimesh(result.mesh.points, result.mesh.faces, process=False).is_watertight
     assert len(result.mesh.faces) <= 1500
     assert mesh_from_sdf(np.ones((4, 4, 4), np.float32), np.zeros(3), 0.1) is None
+
+
+def test_meshing_a_grid_whose_surface_is_not_closed_smooths_before_it_gives_a_hull(monkeypatch) -> None:
+    import trimesh
+
+    from holousd.geometry import _meshing
+
+    grid = VoxelGrid.from_bounds(np.array([-0.2] * 3), np.array([0.2] * 3), 0.01, pad=2)
+    pts = grid.points().reshape(*grid.shape, 3)
+    ring = (np.abs(np.linalg.norm(pts[..., :2], axis=-1) - 0.12) < 0.04) & (np.abs(pts[..., 2]) < 0.05)  # a torus
+    sdf = signed_distance_from_occupancy(ring, grid.voxel_size)
+    real = _meshing._mesh_level_set
+    calls = []
+
+    def first_fails(g, *args):  # marching cubes on the raw grid gives an open surface (a noisy fit's case)
+        calls.append(g)
+        return None if len(calls) == 1 else real(g, *args)
+
+    monkeypatch.setattr(_meshing, "_mesh_level_set", first_fails)
+    result = mesh_from_sdf(sdf, grid.origin, grid.voxel_size)
+    assert result is not None and result.fallback == "smoothed" and result.watertight
+    mesh = trimesh.Trimesh(result.mesh.points, result.mesh.faces, process=False)
+    assert mesh.is_watertight and mesh.euler_number == 0  # still a ring: the hole is kept, unlike a hull's
+    monkeypatch.setattr(_meshing, "_mesh_level_set", lambda *a: None)
+    hull = mesh_from_sdf(sdf, grid.origin, grid.voxel_size)
+    assert hull is not None and hull.fallback == "hull"
+    assert trimesh.Trimesh(hull.mesh.points, hull.mesh.faces).euler_number == 2

@@ -255,3 +255,23 @@ def test_the_visual_hull_keeps_a_top_under_what_stands_on_it(truth: SceneGraph, 
         xs, ys = np.meshgrid(np.linspace(lo[0], hi[0], 6)[1:-1], np.linspace(lo[1], hi[1], 6)[1:-1])
         points = np.column_stack([xs.ravel(), ys.ravel(), np.full(xs.size, lo[2] - 0.005)])  # 5 mm under it
         assert solid.contains(points).mean() >= share, (support, child, solid.contains(points).mean())
+
+
+def test_evidence_leaves_out_what_a_segmenter_labelled_far_from_the_object(truth: SceneGraph, capture: Path,
+                                                                             tmp_path: Path) -> None:  # fmt: skip
+    import shutil
+
+    from PIL import Image
+
+    copy = tmp_path / "demo"
+    shutil.copytree(capture, copy)
+    box = truth.node_info("box_1").instance_id
+    frame = next(i for i in range(8) if (load(copy).mask(i) == box).any())
+    path = copy / "masks" / f"{frame:06d}.png"
+    mask = np.array(Image.open(path))
+    mask[:6, :6] = box  # a false fragment in the image's corner: the room, metres from the box
+    Image.fromarray(mask).save(path)
+    evidence = object_evidence(truth, load(copy), "box_1", stride=1)
+    world = truth.get_pose("box_1").apply(truth.get_mesh("box_1").points)
+    assert len(evidence.points) > 20
+    assert np.all(evidence.points >= world.min(0) - 0.05) and np.all(evidence.points <= world.max(0) + 0.05)

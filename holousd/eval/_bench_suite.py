@@ -62,6 +62,10 @@ class BenchSuiteConfig:
     ``threads``, 1 when unset)."""
     num_cpus: float = 1.0
     """Cores each Ray task declares."""
+    sensors: list[str] = field(default_factory=lambda: ["clean"])
+    """Sensor models of the generated captures (``holousd synth --sensor``): every preset runs on each, side by
+    side; a run on another sensor than 'clean' is labelled ``PRESET[SENSOR]``. Not with ``data`` (an existing
+    capture has the sensor it was made with)."""
 
 
 @dataclass(kw_only=True)
@@ -195,7 +199,8 @@ def summary_table(payloads: list[dict[str, Any]]) -> str:
     """Markdown table of one or more ``bench.json`` payloads: one row per suite and preset, means over scenes.
 
     Columns: scenes, wall time per scene, F1@5cm and Chamfer (scene, visible ground truth), PSNR / SSIM at held-out
-    views, OR%, Stable% (primary solver), the cross-check solver's Stable% and the two solvers' agreement, the
+    views, OR% (objects recovered), support% (recovered objects resting on their ground-truth parent, over all the
+    preset's scenes), Stable% (primary solver), the cross-check solver's Stable% and the two solvers' agreement, the
     worst object's records over the scenes (collider reach outside the rendered mesh, rendered-mesh penetration,
     move from the fitted pose, cm; "–" for runs made before the records), peak memory. Below it, the command
     and machine of each payload. The README's results table is this function's output on the committed reference
@@ -209,9 +214,13 @@ def summary_table(payloads: list[dict[str, Any]]) -> str:
         values = [e["physics"].get(key) for e in ev if e["physics"].get(key) is not None]
         return max(values) if values else None
 
-    lines = ["| suite | preset | scenes | wall s / scene | F1@5cm % | Chamfer cm | PSNR dB | SSIM | OR % | Stable % "
-             "| Stable % (cross-check) | agreement % | reach cm | pen cm | shift cm | peak MiB |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    def support(ev: list[dict[str, Any]]) -> float | None:
+        rows = [o for e in ev for o in e.get("objects", []) if o.get("recon") is not None]
+        return 100.0 * sum(o["parent_recon"] == o["parent_gt"] for o in rows) / len(rows) if rows else None
+
+    lines = ["| suite | preset | scenes | wall s / scene | F1@5cm % | Chamfer cm | PSNR dB | SSIM | OR % | support % "
+             "| Stable % | Stable % (cross-check) | agreement % | reach cm | pen cm | shift cm | peak MiB |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
     notes = []
     for payload in payloads:
         runs = payload["runs"]
@@ -227,6 +236,7 @@ def summary_table(payloads: list[dict[str, Any]]) -> str:
                 f"| {cell(_mean([e['render']['psnr'] for e in ev]), '.1f')} "
                 f"| {cell(_mean([e['render']['ssim'] for e in ev]), '.3f')} "
                 f"| {cell(_mean([e['physics']['or_pct'] for e in ev]), '.0f')} "
+                f"| {cell(support(ev), '.0f')} "
                 f"| {cell(_mean([e['physics']['stable_pct'] for e in ev]), '.0f')} "
                 f"| {cell(_mean([(e['physics'].get('cross_check') or {}).get('stable_pct') for e in ev]), '.0f')} "
                 f"| {cell(_mean([(e['physics'].get('cross_check') or {}).get('agreement_pct') for e in ev]), '.0f')} "
@@ -269,6 +279,8 @@ def _command_line(config: BenchSuiteConfig) -> str:
     parts += [f"--frames {config.frames}", f"--resolution {config.width}x{config.height}", f"--seed {config.seed}"]
     if config.threads:
         parts.append(f"--threads {config.threads}")
+    if config.sensors != ["clean"]:
+        parts.append(f"--sensor {','.join(config.sensors)}")
     if config.ray:
         parts.append(f"--ray {config.ray}")
     return " ".join(parts)
@@ -289,13 +301,17 @@ def bench_run(data: str, out: str, suite: str, name: str, preset_name: str, seed
 
         torch.set_num_threads(threads)
     scene = Path(data) / name
-    base, _, mode = preset_name.partition("@")
+    base, _, mode = preset_name.split("[")[0].partition("@")
     result = reconstruct(scene, Path(out), preset(base, seed=seed, progress=False, threads=threads,
                                                   search=mode or None),
                          resume=True, log=log if not quiet else (lambda _: None))  # fmt: skip
     wall = sum(stage.wall_s for stage in result.stages)  # as recorded, also for stages resumed
     evaluation = evaluate_scene(result.scene_file, scene, EvalConfig(samples=samples, log=log))
-    return {"suite": suite, "scene": name, "preset": preset_name, "wall_s": wall,
+    try:
+        sensor = json.loads((scene / "gt" / "graph.json").read_text())["capture"]["sensor"]["name"]
+    except (OSError, ValueError, KeyError, TypeError):
+        sensor = "clean"  # captures generated before sensor models
+    return {"suite": suite, "scene": name, "preset": preset_name, "sensor": sensor, "wall_s": wall,
             "peak_mem_mb": result.peak_mem_mb, "eval": evaluation.to_dict()}  # fmt: skip
 
 
@@ -308,40 +324,55 @@ def run_bench(out: str | os.PathLike[str], config: BenchSuiteConfig | None = Non
             only evaluated again.
         config: Settings.
     """
-    from holousd.synth import SynthConfig, generate_suite, scene_names
+    from holousd._errors import HolousdError
+    from holousd.synth import SynthConfig, generate_suite, scene_names, sensor_model
 
     config = config or BenchSuiteConfig()
+    for s in config.sensors:
+        sensor_model(s)
+    if config.data is not None and config.sensors != ["clean"]:
+        raise HolousdError("--sensor generates captures; with --data the captures are given (and carry the sensor "
+                           "they were made with): drop one of them")  # fmt: skip
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     names = config.scenes or scene_names(config.suite)
-    data = config.data
-    if data is None:
-        data = out / "data"
+    datas: dict[str, Path] = {}
+    for sensor in config.sensors:
+        if config.data is not None:
+            datas[sensor] = Path(config.data)
+            continue
+        data = out / ("data" if sensor == "clean" else f"data-{sensor}")
+        datas[sensor] = data
         todo = [n for n in names if not (data / n / "gt" / "graph.json").is_file()]
         if todo:
             generate_suite(config.suite, data, SynthConfig(seed=config.seed, frames=config.frames, width=config.width,
-                                                          height=config.height, progress=False, overwrite=True),
+                                                          height=config.height, progress=False, overwrite=True,
+                                                          sensor=sensor),
                            scenes=todo)  # fmt: skip
     runs: list[dict[str, Any]] = []
 
     def log(line: str) -> None:
         print(line, file=sys.stderr, flush=True)
 
-    pairs = [(p, name) for p in config.presets for name in names]
+    def label(p: str, sensor: str) -> str:
+        return p if sensor == "clean" else f"{p}[{sensor}]"
+
+    labels = [label(p, sensor) for sensor in config.sensors for p in config.presets]
+    data_of = {label(p, sensor): datas[sensor] for sensor in config.sensors for p in config.presets}
+    pairs = [(p, name) for p in labels for name in names]
     start = time.perf_counter()
     engine: dict[str, Any] = {"engine": "sequential"}
     if config.ray is None:
         for p, name in pairs:
             log(f"bench: {config.suite}/{name} preset {p}")
-            runs.append(bench_run(str(data), str(out / "runs" / p / name), config.suite, name, p, config.seed,
+            runs.append(bench_run(str(data_of[p]), str(out / "runs" / p / name), config.suite, name, p, config.seed,
                                   config.threads, config.samples, False))  # fmt: skip
     else:
-        from holousd._errors import HolousdError
         from holousd.batch._engine import run_tasks
 
         threads = config.threads or max(1, int(config.num_cpus))
-        tasks = [(f"{name}/{p}", (str(data), str(out / "runs" / p / name), config.suite, name, p, config.seed, threads,
-                                  config.samples, True)) for p, name in pairs]  # fmt: skip
+        tasks = [(f"{name}/{p}", (str(data_of[p]), str(out / "runs" / p / name), config.suite, name, p, config.seed,
+                                  threads, config.samples, True)) for p, name in pairs]  # fmt: skip
         outcomes = run_tasks(bench_run, tasks, ray=config.ray, num_cpus=config.num_cpus,
                              on_done=lambda o: log(f"bench: {config.suite}/{o.key} {'done' if o.ok else 'FAILED'} "
                                                    f"({o.wall_s:.1f} s in its worker)"))  # fmt: skip
@@ -363,7 +394,8 @@ def run_bench(out: str | os.PathLike[str], config: BenchSuiteConfig | None = Non
     if config.ray is None:
         engine["wall_s"] = time.perf_counter() - start
     files = []
-    payload = {"format": "holousd-bench", "version": 1, "suite": config.suite, "presets": config.presets,
+    payload = {"format": "holousd-bench", "version": 1, "suite": config.suite, "presets": labels,
+               "sensors": config.sensors,
                "scenes": names, "command": config.command or _command_line(config),
                "date": time.strftime("%Y-%m-%d", time.gmtime()), "machine": machine_info(), "engine": engine,
                "runs": runs}  # fmt: skip

@@ -50,6 +50,8 @@ class DemoConfig:
     """Seed of generation and reconstruction."""
     threads: int | None = None
     """Torch CPU threads (None: torch's setting)."""
+    sensor: str = "clean"
+    """Sensor model of the synthesised capture (see :mod:`holousd.synth._sensor`)."""
     samples: int = 100_000
     """Surface samples of the geometry metrics."""
 
@@ -323,9 +325,11 @@ def run_demo(out: str | os.PathLike[str], config: DemoConfig | None = None) -> P
         print(f"[demo {time.perf_counter() - start:6.1f}s] {line}", file=sys.stderr, flush=True)
 
     data = out / "data"
-    say(f"synthesising the demo scene ({config.frames} frames, {config.width}x{config.height}) -> {data}")
+    say(f"synthesising the demo scene ({config.frames} frames, {config.width}x{config.height}, sensor "
+        f"{config.sensor}) -> {data}")
     generate_suite("demo", data, SynthConfig(seed=config.seed, frames=config.frames, width=config.width,
-                                             height=config.height, progress=False, overwrite=True))  # fmt: skip
+                                             height=config.height, progress=False, overwrite=True,
+                                             sensor=config.sensor))  # fmt: skip
     say(f"reconstructing with the {config.preset} preset -> {out / 'recon'}")
     result = reconstruct(data / "demo", out / "recon",
                          preset(config.preset, seed=config.seed, progress=True, threads=config.threads,

@@ -2,12 +2,15 @@
 
 from holousd.geometry._decompose import Decomposition, convexify, plane_decomposition
 from holousd.geometry._grid import (
+    Consensus,
     FusionResult,
     Views,
     VoxelGrid,
     box_sdf,
     carve_hull,
+    confirmed_points,
     fuse_tsdf,
+    label_consensus,
     sample_grid,
     signed_distance_from_occupancy,
 )
@@ -15,6 +18,7 @@ from holousd.geometry._meshing import MeshingResult, face_budget, mesh_from_sdf
 from holousd.geometry._sdf import point_triangle_distance, sdf_from_convex_parts
 
 __all__ = [
+    "Consensus",
     "Decomposition",
     "FusionResult",
     "MeshingResult",
@@ -22,9 +26,11 @@ __all__ = [
     "VoxelGrid",
     "box_sdf",
     "carve_hull",
+    "confirmed_points",
     "convexify",
     "face_budget",
     "fuse_tsdf",
+    "label_consensus",
     "mesh_from_sdf",
     "plane_decomposition",
     "point_triangle_distance",

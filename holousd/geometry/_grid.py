@@ -20,11 +20,15 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = [
+    "NEIGHBOURS",
+    "Consensus",
+    "label_consensus",
     "FusionResult",
     "Views",
     "VoxelGrid",
     "box_sdf",
     "carve_hull",
+    "confirmed_points",
     "fuse_tsdf",
     "observed_fraction",
     "sample_grid",
@@ -281,6 +285,167 @@ def fuse_tsdf(
             seen_free[sl] += free
     tsdf = np.where(weight > 0, sdf_sum / np.maximum(weight, 1.0), trunc).astype(np.float32)
     return FusionResult(tsdf=tsdf, weight=weight, inside=inside, outside=outside, free=seen_free)
+
+
+@dataclass(kw_only=True)
+class Consensus:
+    """What :func:`label_consensus` changed (pixel counts over all frames)."""
+
+    checked: int = 0
+    """Pixels with depth that enough other frames see to be checked."""
+    relabelled: int = 0
+    """Pixels given the label the other frames agree on (a segmenter's boundary error, fragment or lost object)."""
+    unknown: int = 0
+    """Pixels whose label the other frames contradict without agreeing on another (label -1: no evidence)."""
+    flying: int = 0
+    """Depth pixels the other frames see through (mixed or flying returns at edges; depth set to 0)."""
+
+
+NEIGHBOURS = (-20, -10, -5, -3, -1, 1, 3, 5, 10, 20)
+"""Frame offsets :func:`label_consensus` checks each pixel against."""
+
+
+def label_consensus(views: Views, *, tol_m: float = 0.02, tol_rel: float = 0.02, min_votes: int = 2,
+                    keep: float = 1 / 3, agree: float = 0.6, window: int = 5,
+                    neighbours: Sequence[int] = NEIGHBOURS) -> tuple[np.ndarray, np.ndarray, Consensus]:  # fmt: skip
+    """Instance labels and depth checked across frames, as a real capture needs (a video segmenter's masks and a
+    depth sensor's returns are wrong near boundaries, and sometimes wholly).
+
+    Every pixel with depth is lifted to its 3D point and projected into the frames ``neighbours`` away. Each of
+    them that sees the point votes: its label there when its depth agrees with the point's (within
+    ``tol_m + tol_rel * z``), "seen through" when its depth lies beyond; a frame whose depth lies in front (the
+    point is occluded there), has no depth or sees it within a pixel of a label boundary (where its own labels
+    are least sure, and a silhouette seen at a grazing angle puts the point on either side) does not vote. With at least
+    ``min_votes`` votes:
+
+    - a depth pixel seen through by 60% of them is a flying pixel: its depth becomes 0;
+    - a label that at least a third of them confirm stays;
+    - otherwise it becomes the label 60% of them agree on (the object a segmenter lost for a frame; the table
+      top a dilated mug mask took), or -1 (unknown: no evidence for any instance) when they agree on none.
+
+    Before that, within each frame: a pixel near a label boundary whose depth is not that of its label's
+    pixels around it (see :func:`_off_surface`)
+    holds another surface's return (a sensor's coarser depth grid, a mixed return, a mask one pixel off): its
+    label becomes -1. The other frames would not catch it: the wall right behind a mug's silhouette is hidden
+    behind the mug from the neighbouring frames.
+
+    Pixels without depth keep their label. Labels are only ever checked against the capture's own labels: exact
+    masks come back unchanged but for pixels on a boundary that the cameras' rounding puts on either side.
+
+    Returns:
+        (labels [N, H, W] int32 with -1 for unknown, depth [N, H, W] float32, what changed).
+    """
+    if views.depth is None:
+        raise ValueError("label_consensus needs metric depth")
+    n, h, w = views.labels.shape
+    labels = views.labels.copy()
+    depth = views.depth.copy()
+    stats = Consensus()
+    rows, cols = np.mgrid[0:h, 0:w]
+    top = int(max(int(views.labels.max()), 0)) + 2  # vote slots: -> 0 .. max label, then "seen through"
+    sure: dict[int, np.ndarray] = {}
+
+    def confident(j: int) -> np.ndarray:
+        if j not in sure:
+            from scipy.ndimage import maximum_filter, minimum_filter
+
+            lab = views.labels[j]
+            sure[j] = maximum_filter(lab, size=3, mode="nearest") == minimum_filter(lab, size=3, mode="nearest")
+        return sure[j]
+
+    for i in range(n):
+        d = views.depth[i]
+        have = d > 0
+        if not np.any(have):
+            continue
+        r, c = rows[have], cols[have]
+        z = d[have].astype(np.float64)
+        k = views.intrinsics[i]
+        cam = np.stack([(c - k[0, 2]) / k[0, 0] * z, (r - k[1, 2]) / k[1, 1] * z, z], axis=1)
+        pose = views.poses[i]
+        pts = (cam @ pose[:3, :3].T + pose[:3, 3]).astype(np.float32)
+        votes = np.zeros((len(pts), top), np.int32)
+        for off in neighbours:
+            j = i + off
+            if j < 0 or j >= n:
+                continue
+            row, col, zj, valid = views.project(j, pts)
+            dj = views.depth[j][row, col]
+            valid &= (dj > 0) & confident(j)[row, col]
+            tol = tol_m + tol_rel * zj
+            agree = valid & (np.abs(dj - zj) <= tol)
+            through = valid & (dj > zj + tol)
+            lab = views.labels[j][row, col]
+            ok = agree & (lab >= 0)
+            np.add.at(votes, (np.flatnonzero(ok), lab[ok]), 1)
+            votes[through, top - 1] += 1
+        total = votes.sum(axis=1)
+        checked = total >= min_votes
+        stats.checked += int(checked.sum())
+        own = labels[i][have]
+        own_votes = votes[np.arange(len(own)), np.clip(own, 0, top - 2)] * (own >= 0)
+        best = np.argmax(votes[:, : top - 1], axis=1)
+        best_votes = votes[np.arange(len(best)), best]
+        flying = checked & (votes[:, top - 1] >= 0.6 * total)
+        doubt = checked & ~flying & (own_votes < keep * total)
+        agreed = doubt & (best_votes >= agree * total)
+        new = own.copy()
+        new[agreed] = best[agreed]
+        new[doubt & ~agreed] = -1
+        stats.relabelled += int((agreed & (best != own)).sum())
+        stats.unknown += int((doubt & ~agreed).sum())
+        stats.flying += int(flying.sum())
+        labels[i][have] = new
+        di = depth[i]
+        di[r[flying], c[flying]] = 0.0
+        odd = _off_surface(views.labels[i], views.depth[i], tol_m, tol_rel, window)
+        stats.unknown += int((odd & (labels[i] >= 0)).sum())
+        labels[i][odd] = -1
+    return labels, depth, stats
+
+
+def _off_surface(labels: np.ndarray, depth: np.ndarray, tol_m: float, tol_rel: float, window: int) -> np.ndarray:
+    """[H, W] pixels within ``window // 2`` of a label boundary whose depth is farther from the median depth of the
+    pixels of the same label in their ``window`` x ``window`` neighbourhood than the tolerance plus three times
+    those depths' median absolute deviation (a surface seen at a grazing angle changes depth fast from pixel to
+    pixel; a few returns from the wall behind a mug's edge do not move the median or the deviation)."""
+    from scipy.ndimage import maximum_filter, minimum_filter
+
+    h, w = labels.shape
+    near = (maximum_filter(labels, size=window, mode="nearest") != minimum_filter(labels, size=window, mode="nearest"))
+    near &= depth > 0
+    rows, cols = np.nonzero(near)
+    if len(rows) == 0:
+        return np.zeros((h, w), bool)
+    half = window // 2
+    offs = np.arange(-half, half + 1)
+    rr = np.clip(rows[:, None, None] + offs[None, :, None], 0, h - 1).reshape(len(rows), -1)  # [P, window^2]
+    cc = np.clip(cols[:, None, None] + offs[None, None, :], 0, w - 1).reshape(len(rows), -1)
+    d = depth[rr, cc].astype(np.float64)
+    same = (labels[rr, cc] == labels[rows, cols][:, None]) & (d > 0)
+    own = np.where(same, d, np.nan)
+    med = np.nanmedian(own, axis=1)  # the pixel itself is always one of them
+    spread = np.nanmedian(np.abs(own - med[:, None]), axis=1)  # a surface seen at a grazing angle spreads widely
+    z = depth[rows, cols]
+    bad = np.abs(z - med) > tol_m + tol_rel * z + 3.0 * spread
+    out = np.zeros((h, w), bool)
+    out[rows[bad], cols[bad]] = True
+    return out
+
+
+def confirmed_points(cloud: np.ndarray, frame: np.ndarray, radius: float) -> np.ndarray:
+    """The points of an object's back-projected cloud ([P, 3], with the [P] frame each came from) that a point of
+    another frame confirms (one within ``radius``). A segmenter's false fragment, or a return from behind a
+    silhouette, is seen in one frame only. All of them when fewer than half are confirmed (an object seen in a
+    single frame, or frames that do not overlap)."""
+    from scipy.spatial import cKDTree
+
+    if len(cloud) == 0 or len(np.unique(frame)) < 2:
+        return cloud
+    _, idx = cKDTree(cloud).query(cloud, k=12, distance_upper_bound=radius)
+    others = np.where(idx < len(cloud), frame[np.minimum(idx, len(cloud) - 1)], -1)
+    confirmed = ((others >= 0) & (others != frame[:, None])).any(axis=1)
+    return cloud[confirmed] if confirmed.sum() >= 0.5 * len(cloud) else cloud
 
 
 def carve_hull(

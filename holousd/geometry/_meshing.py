@@ -24,7 +24,8 @@ class MeshingResult:
     components: int
     """Connected components found before keeping the largest."""
     fallback: str = ""
-    """'' when marching cubes succeeded, 'hull' when the convex hull of the negative samples replaced it."""
+    """'' when marching cubes succeeded, 'smoothed' when it did on the grid smoothed by half a voxel, 'hull' when
+    the convex hull of the negative samples replaced it."""
 
 
 def face_budget(extent: float, faces_per_metre2: float, minimum: int = 200, maximum: int = 200_000) -> int:
@@ -77,7 +78,9 @@ def mesh_from_sdf(
     component (by enclosed volume) is kept; when the mesh has more faces than ``max_faces`` it is simplified
     with manifold3d (edge collapses that keep the mesh manifold) at a tolerance of 1/4, 1/2 and then 1 voxel,
     stopping at the first that meets the budget (the budget is soft beyond one voxel of deviation). If the
-    result is not watertight, the convex hull of the negative samples replaces it so that no object is lost.
+    result is not watertight (a noisy grid's surface touching itself at a voxel edge), the grid smoothed by a
+    Gaussian of half a voxel is meshed instead (``fallback`` 'smoothed'); if that is not watertight either, the
+    convex hull of the negative samples replaces it so that no object is lost.
 
     Args:
         grid: [X, Y, Z] signed distances, metres, negative inside.
@@ -88,11 +91,42 @@ def mesh_from_sdf(
     Returns:
         The mesh, or None when the grid has no negative sample.
     """
-    import trimesh
-
     grid = np.asarray(grid, dtype=np.float32)
     if not (grid < 0).any():
         return None
+    found = _mesh_level_set(grid, origin, voxel_size, max_faces)
+    if found is not None:
+        return found
+    from scipy.ndimage import gaussian_filter
+
+    smoothed = gaussian_filter(grid, 0.5, mode="nearest")
+    if (smoothed < 0).any():
+        found = _mesh_level_set(smoothed, origin, voxel_size, max_faces)
+        if found is not None:
+            found.fallback = "smoothed"
+            return found
+    idx = np.argwhere(grid < 0)
+    pts = np.asarray(origin, dtype=np.float64) + voxel_size * idx
+    jitter = np.array([[dx, dy, dz] for dx in (-0.5, 0.5) for dy in (-0.5, 0.5) for dz in (-0.5, 0.5)])
+    cloud = (pts[:, None, :] + voxel_size * jitter[None]).reshape(-1, 3)
+    import trimesh
+
+    hull = trimesh.PointCloud(cloud).convex_hull
+    return MeshingResult(
+        mesh=MeshData(points=np.asarray(hull.vertices), faces=np.asarray(hull.faces)),
+        watertight=bool(hull.is_watertight),
+        tolerance=0.0,
+        components=0,
+        fallback="hull",
+    )
+
+
+def _mesh_level_set(grid: np.ndarray, origin: np.ndarray, voxel_size: float,
+                    max_faces: int | None) -> MeshingResult | None:  # fmt: skip
+    """The closed mesh of :func:`mesh_from_sdf` (largest component, simplified to the budget), or None when it is
+    not watertight."""
+    import trimesh
+
     pad_value = float(max(voxel_size, float(np.abs(grid).max())))
     padded = np.pad(grid, 1, mode="constant", constant_values=pad_value)
     origin = np.asarray(origin, dtype=np.float64) - voxel_size
@@ -116,15 +150,4 @@ def mesh_from_sdf(
             tolerance=tolerance,
             components=components,
         )
-    idx = np.argwhere(grid < 0)
-    pts = origin + voxel_size * (idx + 1)
-    jitter = np.array([[dx, dy, dz] for dx in (-0.5, 0.5) for dy in (-0.5, 0.5) for dz in (-0.5, 0.5)])
-    cloud = (pts[:, None, :] + voxel_size * jitter[None]).reshape(-1, 3)
-    hull = trimesh.PointCloud(cloud).convex_hull
-    return MeshingResult(
-        mesh=MeshData(points=np.asarray(hull.vertices), faces=np.asarray(hull.faces)),
-        watertight=bool(hull.is_watertight),
-        tolerance=0.0,
-        components=components,
-        fallback="hull",
-    )
+    return None

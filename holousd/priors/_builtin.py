@@ -30,7 +30,14 @@ def _voxel(evidence: ObjectEvidence) -> float:
     return max(extent / 40.0, 1e-3)
 
 
+_MAX_SAMPLES = 2_000_000
+"""Largest candidate grid, samples: the voxel grows beyond the object's own for a grid reaching far (a small
+object carried down to a support far below it), so that a proposer's memory stays bounded."""
+
+
 def _grid(lo: np.ndarray, hi: np.ndarray, voxel: float) -> VoxelGrid:
+    size = np.asarray(hi, float) - np.asarray(lo, float) + 4 * voxel
+    voxel = max(voxel, float(np.prod(np.maximum(size, voxel)) / _MAX_SAMPLES) ** (1 / 3))
     return VoxelGrid.from_bounds(np.asarray(lo, float), np.asarray(hi, float), voxel, pad=2)
 
 

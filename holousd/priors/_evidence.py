@@ -66,6 +66,10 @@ def object_evidence(scene: SceneGraph, obs: Observations, name: str, *, max_fram
             points.append(cam @ frame.camera_to_world[:3, :3].T + frame.camera_to_world[:3, 3])
     world = pose.apply(mesh.points)
     lo, hi = world.min(0) - margin, world.max(0) + margin
+    seen = np.concatenate(points) if points else np.zeros((0, 3))
+    # what lies farther than ``margin`` outside the fitted shape's box is not the object's: a segmenter's fragment
+    # or a return from behind its silhouette (on the demo's phone capture, a box's candidates spanned 1.8 m)
+    seen = seen[np.all((seen >= lo) & (seen <= hi), axis=1)]
     support = scene.get_support(name) if support is _FROM_SCENE else support
     neighbours: dict[str, MeshData] = {}
     for other in [BACKGROUND, *scene.objects()]:
@@ -100,5 +104,5 @@ def object_evidence(scene: SceneGraph, obs: Observations, name: str, *, max_fram
     if height is None and support == BACKGROUND and floor is not None and floor <= world[:, 2].min() + margin:
         height = float(floor)
     return ObjectEvidence(name=name, instance_id=info.instance_id, pose=pose, mesh=mesh, sdf=sdf, frames=frames,
-                          points=np.concatenate(points) if points else np.zeros((0, 3)), support=support,
+                          points=seen, support=support,
                           support_height=height, neighbours=neighbours)  # fmt: skip

@@ -42,11 +42,14 @@ from holousd._errors import HolousdError
 from holousd._sampling import evenly_spaced
 from holousd._torch_threads import torch_threads
 from holousd.geometry._grid import (
+    Consensus,
     Views,
     VoxelGrid,
     box_sdf,
     carve_hull,
+    confirmed_points,
     fuse_tsdf,
+    label_consensus,
     observed_fraction,
     sample_grid,
     signed_distance_from_occupancy,
@@ -117,6 +120,10 @@ class FitConfig:
     """Frames used for fusion and extents (evenly subsampled), at most."""
     render_frames: int = 200
     """Frames kept in memory for the refinement, at most."""
+    consensus: bool = True
+    """With metric depth, check every pixel's label and depth against the neighbouring frames before anything
+    uses them (:func:`holousd.geometry.label_consensus`): a segmenter's boundary errors, false fragments and lost
+    objects are relabelled or marked unknown, flying depth pixels dropped."""
     extent_margin: float = 1.0
     """Margin around an instance's observed extent that its solid may fill, voxels."""
     hull_voxel: float = 0.06
@@ -214,6 +221,8 @@ class FitResult:
     """Faces of the background mesh."""
     used_depth: str = "none"
     """'metric', 'relative' or 'none'."""
+    consensus: Consensus | None = None
+    """What the label / depth check across frames changed (None: not run)."""
     wall_time_s: float = 0.0
     """Wall-clock time of the stage, seconds."""
     timings: dict[str, float] = field(default_factory=dict)
@@ -234,7 +243,8 @@ class _Frames:
     depth_raw: np.ndarray | None  # [N, H, W] float32 as given (metric or relative)
 
 
-def _load_frames(obs: Observations, count: int, use_depth: bool, use_normals: bool) -> _Frames:
+def _load_frames(obs: Observations, count: int, use_depth: bool, use_normals: bool,
+                 consensus: bool = False) -> tuple[_Frames, Consensus | None]:  # fmt: skip
     idx = evenly_spaced(len(obs), count)
     labels = np.empty((len(idx), obs.height, obs.width), np.int32)
     rgb = np.empty((len(idx), obs.height, obs.width, 3), np.uint8)
@@ -257,7 +267,11 @@ def _load_frames(obs: Observations, count: int, use_depth: bool, use_normals: bo
             normals[j] = obs.normal(int(i))
     metric = depth if (use_depth and obs.depth_kind == "metric") else None
     views = Views(intrinsics=obs.intrinsics[idx], poses=obs.poses[idx], labels=labels, depth=metric)
-    return _Frames(index=idx, views=views, rgb=rgb, normals=normals, depth_raw=depth)
+    checked = None
+    if consensus and metric is not None:
+        views.labels, views.depth, checked = label_consensus(views)
+        depth = views.depth
+    return _Frames(index=idx, views=views, rgb=rgb, normals=normals, depth_raw=depth), checked
 
 
 def _backproject(views: Views, i: int, select: np.ndarray, stride: int = 1) -> np.ndarray:
@@ -328,11 +342,12 @@ def _extents_metric(frames: _Frames, fusion: np.ndarray, ids: list[int]) -> dict
     views = frames.views
     clouds: dict[int, list[np.ndarray]] = {k: [] for k in ids}
     depths: dict[int, list[np.ndarray]] = {k: [] for k in ids}
+    owners: dict[int, list[np.ndarray]] = {k: [] for k in ids}
     for i in fusion:
         lab = views.labels[i]
         valid = views.depth[i] > 0  # type: ignore[index]
         for k in np.unique(lab):
-            if k == 0 or k not in clouds:
+            if k <= 0 or k not in clouds:
                 continue
             sel = (lab == k) & valid
             count = int(sel.sum())
@@ -341,11 +356,15 @@ def _extents_metric(frames: _Frames, fusion: np.ndarray, ids: list[int]) -> dict
             stride = max(1, count // 4000)
             clouds[int(k)].append(_backproject(views, int(i), sel, stride))
             depths[int(k)].append(views.depth[i][sel][::stride])  # type: ignore[index]
+            owners[int(k)].append(np.full(len(clouds[int(k)][-1]), int(i)))
     out = {}
     for k in ids:
         if not clouds[k]:
             continue
-        cloud = np.concatenate(clouds[k])
+        # a segmenter's false fragment or a return from behind a silhouette is in one frame only, and a few of them
+        # set a small object's extent (the demo's plate reached 1.7 m across the room on a phone capture)
+        footprint = float(np.median(np.concatenate(depths[k]))) / float(np.mean(views.intrinsics[:, [0, 1], [0, 1]]))
+        cloud = confirmed_points(np.concatenate(clouds[k]), np.concatenate(owners[k]), max(0.02, 3.0 * footprint))
         lo, hi = np.percentile(cloud, 0.2, axis=0), np.percentile(cloud, 99.8, axis=0)
         # downwards, all but stray points: the lowest 0.2% of a table's points lie 7 cm above the floor (its
         # legs' feet are seen in few frames, 95 of 72k points below 5 cm on hard/stack), and the extent cut them
@@ -496,7 +515,9 @@ class _RaySampler:
         lut = np.zeros(max(max(index_of, default=0), int(frames.views.labels.max())) + 1, np.int64)
         for inst_id, k in index_of.items():
             lut[inst_id] = k + 1
-        self.labels = lut[frames.views.labels].reshape(n, -1)  # [N, H*W] 0 = background, k + 1 = instance k
+        raw = frames.views.labels
+        # [N, H*W] 0 = background, k + 1 = instance k, -1 = unknown (see label_consensus)
+        self.labels = np.where(raw >= 0, lut[np.maximum(raw, 0)], -1).reshape(n, -1)
         self.groups: list[list[np.ndarray]] = []
         for i in range(n):
             lab = self.labels[i]
@@ -595,7 +616,7 @@ def _refine_steps(active: list[_Instance], frames: _Frames, relative: bool, conf
         pred_rgb = out.color + (1.0 - out.opacity)[:, None] * target_rgb
         terms: dict[str, torch.Tensor] = {}
         terms["rgb"] = ((pred_rgb - target_rgb) ** 2).mean()
-        terms["mask"] = torch.nn.functional.nll_loss(torch.log(out.probs), rays.labels)
+        terms["mask"] = torch.nn.functional.nll_loss(torch.log(out.probs), rays.labels, ignore_index=-1)
         obj = rays.labels > 0
         if depth_all is not None and w.depth > 0:
             d = torch.tensor(depth_all[f_idx, p_idx], dtype=torch.float32, device=device)
@@ -736,8 +757,14 @@ def fit(scene: SceneGraph, obs: Observations, config: FitConfig | None = None,
     use_depth = obs.has_depth
     relative = use_depth and obs.depth_kind == "relative"
     metric = use_depth and obs.depth_kind == "metric"
-    frames = _load_frames(obs, max(config.render_frames, config.fusion_frames), use_depth, obs.has_normals)
+    frames, checked = _load_frames(obs, max(config.render_frames, config.fusion_frames), use_depth, obs.has_normals,
+                                   config.consensus)  # fmt: skip
     views = frames.views
+    if checked is not None and config.progress and (checked.relabelled or checked.unknown or checked.flying):
+        share = 100.0 * (checked.relabelled + checked.unknown) / max(1, checked.checked)
+        print(f"fit: labels checked across frames: {checked.relabelled} pixels relabelled, {checked.unknown} "
+              f"unknown ({share:.1f}% of {checked.checked}), {checked.flying} flying depth pixels dropped",
+              file=sys.stderr)  # fmt: skip
     fusion = evenly_spaced(len(views), config.fusion_frames)
     timings["load"] = time.perf_counter() - start
 
@@ -863,6 +890,7 @@ def fit(scene: SceneGraph, obs: Observations, config: FitConfig | None = None,
         floor_z=floor_estimate,
         background_faces=len(background.faces),
         used_depth=obs.depth_kind or "none",
+        consensus=checked,
         wall_time_s=time.perf_counter() - start,
         timings=timings,
         peak_memory_mb=_peak_memory_mb(),

@@ -76,6 +76,10 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     bench.add_argument("--search", default="tree", metavar="MODES",
                        help="comma-separated s2 search modes run with every preset (tree, ground, none): the "
                        "ablation rows; a mode other than tree is labelled PRESET@MODE (default: tree)")  # fmt: skip
+    bench.add_argument("--sensor", default="clean", metavar="SENSORS",
+                       help="comma-separated sensor models of the generated captures (clean, phone, lidar; see "
+                       "holousd synth --help): each preset runs on each, side by side, a run on another sensor than "
+                       "clean labelled PRESET[SENSOR] (default: clean)")  # fmt: skip
     bench.add_argument("--data", type=Path, default=None, metavar="DIR",
                        help="existing synth output of the suite (default: generate into OUT/data)")  # fmt: skip
     bench.add_argument("--frames", type=positive_int, default=60, help="frames per generated scene")
@@ -100,6 +104,8 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     demo.add_argument("--seed", type=int, default=0, help="seed of generation and reconstruction")
     demo.add_argument("--threads", type=positive_int, default=None, help="torch CPU threads (default: torch's)")
     demo.add_argument("--search", choices=("tree", "ground", "none"), default="tree", help="s2 search mode")
+    demo.add_argument("--sensor", choices=("clean", "phone", "lidar"), default="clean",
+                      help="sensor model of the synthesised capture (see holousd synth --help)")  # fmt: skip
     demo.set_defaults(handler=_demo)
 
 
@@ -193,7 +199,8 @@ def _bench(args: argparse.Namespace) -> int:
     scenes = [s.strip() for s in args.scenes.split(",")] if args.scenes else None
     config = BenchSuiteConfig(suite=args.suite, presets=presets, scenes=scenes, data=args.data, frames=args.frames,
                               width=args.resolution[0], height=args.resolution[1], seed=args.seed,
-                              threads=args.threads, ray=args.ray)  # fmt: skip
+                              threads=args.threads, ray=args.ray,
+                              sensors=[s.strip() for s in args.sensor.split(",") if s.strip()])  # fmt: skip
     if args.ray is not None:
         from holousd.batch._cli import _require_ray
 
@@ -208,7 +215,7 @@ def _demo(args: argparse.Namespace) -> int:
     from holousd.eval._report import DemoConfig, run_demo
 
     config = DemoConfig(frames=args.frames, width=args.resolution[0], height=args.resolution[1], preset=args.preset,
-                        seed=args.seed, threads=args.threads, search=args.search)  # fmt: skip
+                        seed=args.seed, threads=args.threads, search=args.search, sensor=args.sensor)  # fmt: skip
     report = run_demo(args.out, config)
     print(f"demo report: {report}", file=sys.stdout)
     return 0

@@ -22,6 +22,8 @@ normals/), and ground truth in gt/: scene.usda (meshes, colliders, mass, frictio
 relations; passes holousd validate), graph.json (support tree, beside pairs, poses, physical parameters,
 observed fraction per object) and meshes/<name>.ply (watertight, object coordinates). Depth is metric
 z-depth along the optical axis; normals are in the OpenCV camera frame; mask 0 is the room.
+With --sensor phone or lidar the capture carries that device's defects (the model, channel by channel, is
+documented in holousd/synth/_sensor.py and recorded in gt/graph.json); gt/cameras.json holds the true poses.
 The same --seed gives byte-identical files."""
 
 
@@ -54,6 +56,15 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
         metavar="NAME[,NAME...]",
         help="comma-separated scenes of the suite to generate; None = all",
     )
+    synth.add_argument(
+        "--sensor",
+        choices=("clean", "phone", "lidar"),
+        default="clean",
+        help="what the capture device does to the frames: clean = the renderer's exact depth, normals, masks and "
+        "poses; phone = a phone's LiDAR depth (half resolution, noisy, holes), a video segmenter's masks, a "
+        "tracker's drifting poses, auto-exposure, blur, no normals; lidar = a depth camera on a tracked rig "
+        "(less of each). The ground truth in gt/ stays exact",
+    )
     synth.add_argument("--overwrite", action="store_true", help="replace scene folders generated before")
     synth.add_argument("--no-progress", action="store_true", help="do not show progress bars on stderr")
     synth.set_defaults(handler=_synth)
@@ -85,6 +96,7 @@ def _synth(args: argparse.Namespace) -> int:
         format=args.format,
         progress=not args.no_progress,
         overwrite=args.overwrite,
+        sensor=args.sensor,
     )
     scenes = [s.strip() for s in args.scenes.split(",") if s.strip()] if args.scenes else None
     start = time.perf_counter()

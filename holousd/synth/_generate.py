@@ -29,6 +29,7 @@ from holousd.synth._camera import camera_path, intrinsics_for
 from holousd.synth._example import _union
 from holousd.synth._layout import SceneSpec
 from holousd.synth._render import SceneRenderer, SynthCapture
+from holousd.synth._sensor import sensor_model
 from holousd.synth._suites import SUITES, build_scene
 from holousd.usd import BACKGROUND, Collider, MeshData, PhysicsProps, SceneGraph
 
@@ -58,6 +59,9 @@ class SynthConfig:
     """Show progress bars on stderr."""
     overwrite: bool = False
     """Replace scene folders that already hold a generated scene."""
+    sensor: str = "clean"
+    """Sensor model of the capture (see :mod:`holousd.synth._sensor`): 'clean' (the renderer's exact frames),
+    'phone' or 'lidar'. The ground truth stays exact."""
 
 
 @dataclass(kw_only=True)
@@ -251,9 +255,16 @@ def _write_ground_truth(
         "nodes": nodes,
         "support": [[o.name, o.parent] for o in spec.objects],
         "beside_pairs": [list(p) for p in spec.beside_pairs()],
-        "capture": {"format": config.format, "frames": config.frames, "width": config.width, "height": config.height},
+        "capture": {"format": config.format, "frames": config.frames, "width": config.width, "height": config.height,
+                    "sensor": sensor_model(config.sensor).to_dict()},  # fmt: skip
     }
     write_json(gt / "graph.json", graph)
+    write_json(gt / "cameras.json", {
+        "format": "holousd-synth-cameras", "version": 1,
+        "conventions": "true camera-to-world poses of the capture's frames (OpenCV cameras, world Z up, metres), "
+        "in frame order; the capture's own poses carry the sensor's tracking error",
+        "poses": [[[float(x) for x in row] for row in p] for p in capture.poses],
+    })  # fmt: skip
     return observed
 
 
@@ -269,6 +280,7 @@ def generate_scene(
         suite: Name of the suite recorded in graph.json.
     """
     folder = Path(folder)
+    sensor_model(config.sensor)  # an unknown sensor fails before anything is written
     _prepare_folder(folder, config.overwrite)
     rng = np.random.default_rng([config.seed, 7])
     meshes = object_meshes(spec)
@@ -278,7 +290,7 @@ def generate_scene(
         samples[obj.name] = (obj.pose.apply(points), normals @ obj.pose.rotation_matrix().T)
     capture = _capture(spec, meshes, config, rng, samples)
     names = {o.instance_id: o.name for o in spec.objects}
-    obs = capture.observations(names)
+    obs = capture.observations(names, sensor_model(config.sensor), config.seed)
     write_observations(obs, folder, format=config.format, progress=config.progress)
     capture.render_all()  # statistics of any frame the writer did not read
     observed = _write_ground_truth(spec, folder, meshes, capture, config, suite)
@@ -325,6 +337,7 @@ def generate_suite(
         "version": 1,
         "suite": suite,
         "seed": config.seed,
+        "sensor": config.sensor,
         "scenes": [entries[n] for n in SUITES[suite] if n in entries],
     }
     write_json(out / "suite.json", index)
@@ -332,7 +345,7 @@ def generate_suite(
 
 
 def _index_entries(path: Path, suite: str, config: SynthConfig) -> dict[str, dict]:
-    """The scene entries of an existing ``suite.json`` made with the same suite, seed, frames and size whose
+    """The scene entries of an existing ``suite.json`` made with the same suite, seed, sensor, frames and size whose
     folders still exist (so generating a few scenes into a suite folder keeps the others listed); {} otherwise."""
     import json
 
@@ -341,6 +354,8 @@ def _index_entries(path: Path, suite: str, config: SynthConfig) -> dict[str, dic
     except (OSError, ValueError):
         return {}
     if not isinstance(index, dict) or index.get("suite") != suite or index.get("seed") != config.seed:
+        return {}
+    if index.get("sensor", "clean") != config.sensor:
         return {}
     kept = {}
     for entry in index.get("scenes", []):

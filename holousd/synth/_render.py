@@ -14,6 +14,7 @@ import numpy as np
 from holousd.io import LazyArray, Observations
 from holousd.synth._layout import SceneSpec
 from holousd.synth._raycast import RayCaster
+from holousd.synth._sensor import SensorModel
 from holousd.synth._texture import albedo, shade
 from holousd.usd import MeshData
 
@@ -209,20 +210,61 @@ class SynthCapture:
             idx = np.flatnonzero(ok)[hit]
             self.seen[name][idx] = True
 
-    def observations(self, instance_names: dict[int, str]) -> Observations:
-        """Lazy :class:`Observations` whose frames render on first access."""
+    def flow(self, i: int) -> np.ndarray:
+        """[H, W, 2] image motion (du, dv) of every pixel of frame ``i`` to the next frame (the previous one's,
+        reversed, for the last), from the true depth and poses; 0 where nothing was hit."""
+        j, sign = (i + 1, 1.0) if i + 1 < len(self) else (i - 1, -1.0)
+        if j < 0:
+            return np.zeros((self.height, self.width, 2))
+        fr = self.frame(i)
+        k, c2w, c2w_j = self.intrinsics[i], self.poses[i], self.poses[j]
+        u, v = np.meshgrid(np.arange(self.width, dtype=np.float64), np.arange(self.height, dtype=np.float64))
+        z = fr.depth.astype(np.float64)
+        cam = np.stack([(u - k[0, 2]) / k[0, 0] * z, (v - k[1, 2]) / k[1, 1] * z, z], axis=-1)  # [H, W, 3]
+        world = cam @ c2w[:3, :3].T + c2w[:3, 3]
+        other = (world - c2w_j[:3, 3]) @ c2w_j[:3, :3]
+        kj = self.intrinsics[j]
+        front = other[..., 2] > 1e-3
+        zj = np.where(front, other[..., 2], 1.0)
+        du = kj[0, 0] * other[..., 0] / zj + kj[0, 2] - u
+        dv = kj[1, 1] * other[..., 1] / zj + kj[1, 2] - v
+        ok = (z > 0) & front
+        return sign * np.where(ok[..., None], np.stack([du, dv], axis=-1), 0.0)
+
+    def observations(
+        self, instance_names: dict[int, str], sensor: SensorModel | None = None, seed: int = 0
+    ) -> Observations:
+        """Lazy :class:`Observations` whose frames render on first access.
+
+        Args:
+            instance_names: Instance id -> object name.
+            sensor: What a device makes of the rendered frames and the camera path (None: the exact frames).
+            seed: Seed of the sensor's random choices.
+        """
         n = len(self)
 
         def lazy(channel: str) -> list[LazyArray]:
             return [LazyArray(lambda i=i: getattr(self.frame(i), channel), f"<synth frame {i}>") for i in range(n)]
 
+        def noisy(read) -> list[LazyArray]:
+            return [LazyArray(lambda i=i: read(i), f"<synth frame {i}>") for i in range(n)]
+
+        if sensor is None or sensor.clean:
+            rgb, masks, depth, normals, poses = lazy("rgb"), lazy("mask"), lazy("depth"), lazy("normal"), self.poses
+        else:
+            gains = sensor.exposures(n, seed)
+            rgb = noisy(lambda i: sensor.rgb(self.frame(i).rgb, self.flow(i), gains[i], seed, i))
+            masks = noisy(lambda i: sensor.mask(self.frame(i).mask, seed, i))
+            depth = noisy(lambda i: sensor.depth(self.frame(i).depth, seed, i))
+            normals = lazy("normal") if sensor.normals else None
+            poses = sensor.poses(self.poses, seed)
         return Observations(
-            rgb=lazy("rgb"),
-            masks=lazy("mask"),
-            depth=lazy("depth"),
-            normals=lazy("normal"),
+            rgb=rgb,
+            masks=masks,
+            depth=depth,
+            normals=normals,
             intrinsics=self.intrinsics,
-            poses=self.poses,
+            poses=poses,
             width=self.width,
             height=self.height,
             depth_kind="metric",
