@@ -124,6 +124,19 @@ class Views:
         row = np.where(valid, v, 0).astype(np.int64)
         return row, col, z, valid
 
+    def backproject(self, i: int, select: np.ndarray, stride: int = 1) -> np.ndarray:
+        """[P, 3] world points of the ``select``-ed pixels of frame ``i`` (row-major order, every ``stride``-th;
+        needs metric depth)."""
+        assert self.depth is not None
+        rows, cols = np.nonzero(select)
+        if stride > 1:
+            rows, cols = rows[::stride], cols[::stride]
+        d = self.depth[i][rows, cols]
+        k = self.intrinsics[i]
+        cam = np.stack([(cols - k[0, 2]) / k[0, 0] * d, (rows - k[1, 2]) / k[1, 1] * d, d], axis=1)
+        pose = self.poses[i]
+        return cam @ pose[:3, :3].T + pose[:3, 3]
+
     def footprint(self, i: int, depth: float) -> float:
         """Size of one pixel at ``depth`` metres in frame ``i``, metres."""
         k = self.intrinsics[i]
@@ -341,29 +354,19 @@ def label_consensus(views: Views, *, tol_m: float = 0.02, tol_rel: float = 0.02,
     labels = views.labels.copy()
     depth = views.depth.copy()
     stats = Consensus()
-    rows, cols = np.mgrid[0:h, 0:w]
     top = int(max(int(views.labels.max()), 0)) + 2  # vote slots: -> 0 .. max label, then "seen through"
     sure: dict[int, np.ndarray] = {}
 
     def confident(j: int) -> np.ndarray:
         if j not in sure:
-            from scipy.ndimage import maximum_filter, minimum_filter
-
-            lab = views.labels[j]
-            sure[j] = maximum_filter(lab, size=3, mode="nearest") == minimum_filter(lab, size=3, mode="nearest")
+            sure[j] = ~_near_label_edge(views.labels[j], 3)
         return sure[j]
 
     for i in range(n):
-        d = views.depth[i]
-        have = d > 0
+        have = views.depth[i] > 0
         if not np.any(have):
             continue
-        r, c = rows[have], cols[have]
-        z = d[have].astype(np.float64)
-        k = views.intrinsics[i]
-        cam = np.stack([(c - k[0, 2]) / k[0, 0] * z, (r - k[1, 2]) / k[1, 1] * z, z], axis=1)
-        pose = views.poses[i]
-        pts = (cam @ pose[:3, :3].T + pose[:3, 3]).astype(np.float32)
+        pts = views.backproject(i, have).astype(np.float32)
         votes = np.zeros((len(pts), top), np.int32)
         for off in neighbours:
             j = i + off
@@ -396,8 +399,7 @@ def label_consensus(views: Views, *, tol_m: float = 0.02, tol_rel: float = 0.02,
         stats.unknown += int((doubt & ~agreed).sum())
         stats.flying += int(flying.sum())
         labels[i][have] = new
-        di = depth[i]
-        di[r[flying], c[flying]] = 0.0
+        depth[i][have] = np.where(flying, 0.0, depth[i][have])
         odd = _off_surface(views.labels[i], views.depth[i], tol_m, tol_rel, window)
         stats.unknown += int((odd & (labels[i] >= 0)).sum())
         labels[i][odd] = -1
@@ -409,11 +411,8 @@ def _off_surface(labels: np.ndarray, depth: np.ndarray, tol_m: float, tol_rel: f
     pixels of the same label in their ``window`` x ``window`` neighbourhood than the tolerance plus three times
     those depths' median absolute deviation (a surface seen at a grazing angle changes depth fast from pixel to
     pixel; a few returns from the wall behind a mug's edge do not move the median or the deviation)."""
-    from scipy.ndimage import maximum_filter, minimum_filter
-
     h, w = labels.shape
-    near = (maximum_filter(labels, size=window, mode="nearest") != minimum_filter(labels, size=window, mode="nearest"))
-    near &= depth > 0
+    near = _near_label_edge(labels, window) & (depth > 0)
     rows, cols = np.nonzero(near)
     if len(rows) == 0:
         return np.zeros((h, w), bool)
@@ -431,6 +430,13 @@ def _off_surface(labels: np.ndarray, depth: np.ndarray, tol_m: float, tol_rel: f
     out = np.zeros((h, w), bool)
     out[rows[bad], cols[bad]] = True
     return out
+
+
+def _near_label_edge(labels: np.ndarray, size: int) -> np.ndarray:
+    """[H, W] pixels whose ``size`` x ``size`` neighbourhood holds more than one label."""
+    from scipy.ndimage import maximum_filter, minimum_filter
+
+    return maximum_filter(labels, size=size, mode="nearest") != minimum_filter(labels, size=size, mode="nearest")
 
 
 def confirmed_points(cloud: np.ndarray, frame: np.ndarray, radius: float) -> np.ndarray:

@@ -274,19 +274,6 @@ def _load_frames(obs: Observations, count: int, use_depth: bool, use_normals: bo
     return _Frames(index=idx, views=views, rgb=rgb, normals=normals, depth_raw=depth), checked
 
 
-def _backproject(views: Views, i: int, select: np.ndarray, stride: int = 1) -> np.ndarray:
-    """[P, 3] world points of the selected pixels of frame ``i`` (needs metric depth)."""
-    assert views.depth is not None
-    rows, cols = np.nonzero(select)
-    if stride > 1:
-        rows, cols = rows[::stride], cols[::stride]
-    d = views.depth[i][rows, cols]
-    k = views.intrinsics[i]
-    cam = np.stack([(cols - k[0, 2]) / k[0, 0] * d, (rows - k[1, 2]) / k[1, 1] * d, d], axis=1)
-    pose = views.poses[i]
-    return cam @ pose[:3, :3].T + pose[:3, 3]
-
-
 # --------------------------------------------------------------------------------------------- background
 def _floor_from_points(points: np.ndarray) -> float:
     z = points[:, 2]
@@ -297,7 +284,7 @@ def _floor_from_points(points: np.ndarray) -> float:
 
 def _background_metric(frames: _Frames, fusion: np.ndarray, config: FitConfig) -> tuple[float, MeshData | None]:
     views = frames.views
-    pts = [_backproject(views, int(i), (views.labels[i] == 0) & (views.depth[i] > 0), stride=7) for i in fusion]  # type: ignore[index]
+    pts = [views.backproject(int(i), (views.labels[i] == 0) & (views.depth[i] > 0), stride=7) for i in fusion]  # type: ignore[index]
     cloud = np.concatenate(pts) if pts else np.zeros((0, 3))
     if len(cloud) < 50:
         return 0.0, None
@@ -354,7 +341,7 @@ def _extents_metric(frames: _Frames, fusion: np.ndarray, ids: list[int]) -> dict
             if count == 0:
                 continue
             stride = max(1, count // 4000)
-            clouds[int(k)].append(_backproject(views, int(i), sel, stride))
+            clouds[int(k)].append(views.backproject(int(i), sel, stride))
             depths[int(k)].append(views.depth[i][sel][::stride])  # type: ignore[index]
             owners[int(k)].append(np.full(len(clouds[int(k)][-1]), int(i)))
     out = {}
@@ -363,13 +350,14 @@ def _extents_metric(frames: _Frames, fusion: np.ndarray, ids: list[int]) -> dict
             continue
         # a segmenter's false fragment or a return from behind a silhouette is in one frame only, and a few of them
         # set a small object's extent (the demo's plate reached 1.7 m across the room on a phone capture)
-        footprint = float(np.median(np.concatenate(depths[k]))) / float(np.mean(views.intrinsics[:, [0, 1], [0, 1]]))
+        median_depth = float(np.median(np.concatenate(depths[k])))
+        footprint = median_depth / float(np.mean(views.intrinsics[:, [0, 1], [0, 1]]))
         cloud = confirmed_points(np.concatenate(clouds[k]), np.concatenate(owners[k]), max(0.02, 3.0 * footprint))
         lo, hi = np.percentile(cloud, 0.2, axis=0), np.percentile(cloud, 99.8, axis=0)
         # downwards, all but stray points: the lowest 0.2% of a table's points lie 7 cm above the floor (its
         # legs' feet are seen in few frames, 95 of 72k points below 5 cm on hard/stack), and the extent cut them
         lo[2] = np.percentile(cloud[:, 2], 0.02)
-        out[k] = (lo, hi, float(np.median(np.concatenate(depths[k]))))
+        out[k] = (lo, hi, median_depth)
     return out
 
 
