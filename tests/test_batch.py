@@ -15,8 +15,11 @@ import pytest
 from pxr import Sdf
 
 from holousd.batch import BatchConfig, run_batch, run_tasks
+from holousd.io import load
+from holousd.stages import _search
 from holousd.stages._pipeline import preset
 from holousd.synth import SynthConfig, generate_suite
+from holousd.usd import SceneGraph
 
 
 def _tiny():  # noqa: ANN202 - PipelineConfig
@@ -117,12 +120,39 @@ def test_ray_tasks_give_what_the_local_pool_gives(captures: list[Path], tmp_path
         assert not outcomes[1].ok and outcomes[1].error == "internal error (ValueError: negative: -1)"
         out = tmp_path / "ray"
         result = run_batch(captures, out, BatchConfig(pipeline=_tiny(), until="fit", ray="auto", progress=False))
+        searched = {}
+        for engine, options in (("ray", {"ray": "auto"}), ("local", {"workers": 1})):
+            shutil.copytree(out / "room1", tmp_path / f"search-{engine}")
+            scene = SceneGraph.open(tmp_path / f"search-{engine}" / "scene.usda")
+            found = _search.search(scene, load(captures[0]), _search.SearchConfig(**options))
+            searched[engine] = [(c.name, c.parent, c.chosen, [s.total for s in c.scores]) for c in found.choices]
     finally:
         ray.shutdown()
     _check_rows(result.rows, out, ["observe", "fit"])
     local = tmp_path / "local"
     run_batch(captures[:1], local, BatchConfig(pipeline=_tiny(), until="fit", workers=1, progress=False))
     assert _layer(out / "room1" / "10_fit.usda") == _layer(local / "room1" / "10_fit.usda")
+    assert searched["ray"] and searched["ray"] == searched["local"]  # the search's candidates on Ray: the same choices
+    assert _layer(tmp_path / "search-ray" / "15_search.usda") == _layer(tmp_path / "search-local" / "15_search.usda")
+
+
+def _worker_state(_: int) -> tuple[int, str | None]:
+    import os
+
+    return os.getpid(), os.environ.get("OMP_NUM_THREADS")
+
+
+def test_a_task_pool_keeps_its_workers_and_gives_each_its_share_of_the_cores(monkeypatch: pytest.MonkeyPatch) -> None:
+    from holousd._tasks import TaskPool, _cores
+
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+    with TaskPool(workers=2) as pool:
+        first = pool.run(_worker_state, [(str(k), (k,)) for k in range(4)])
+        again = pool.run(_worker_state, [(str(k), (k,)) for k in range(4)])
+    pids = {o.value[0] for o in first}
+    assert len(pids) == 2 and {o.value[0] for o in again} <= pids  # the same warm processes, no new spawn
+    assert {o.value[1] for o in first} == {str(max(1, _cores() // 2))}  # BLAS threads: the worker's share
+    assert "OMP_NUM_THREADS" not in __import__("os").environ  # this process's environment as it was
 
 
 def test_batch_refuses_bad_arguments_before_any_task(captures: list[Path], tmp_path: Path) -> None:

@@ -7,6 +7,7 @@ import math
 import shutil
 from dataclasses import replace
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -146,7 +147,7 @@ def test_tree_search_records_every_candidate_and_keeps_the_lowest_total(
         fitted: tuple[Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
     capture, rec = fitted
     obs = load(capture)
-    first = _search.search(_copy(rec, tmp_path / "a"), obs, _search.SearchConfig(mode="tree"))
+    first = _search.search(_copy(rec, tmp_path / "a"), obs, _search.SearchConfig(mode="tree", workers=1))
     assert first.choices and (tmp_path / "a" / _search.SEARCH_LAYER).is_file()
     scene = SceneGraph.open(tmp_path / "a" / _search.SEARCH_LAYER)
     fit = SceneGraph.open(tmp_path / "a" / "10_fit.usda")
@@ -166,9 +167,11 @@ def test_tree_search_records_every_candidate_and_keeps_the_lowest_total(
     assert main(["info", str(tmp_path / "a" / _search.SEARCH_LAYER)]) == 0
     printed = capsys.readouterr().out
     assert "s2 search" in printed and "runner-up" in printed and f"E_stable measured {_search.SOLVER}" in printed
-    again = _search.search(_copy(rec, tmp_path / "b"), obs, _search.SearchConfig(mode="tree"))
+    again = _search.search(_copy(rec, tmp_path / "b"), obs, _search.SearchConfig(mode="tree", workers=2))
     assert [(c.name, c.chosen, [s.total for s in c.scores]) for c in again.choices] == [
         (c.name, c.chosen, [s.total for s in c.scores]) for c in first.choices]  # the same seed, the same scene
+    tree = SimpleNamespace(support={c.name: c.parent for c in first.choices})
+    assert len(_search._waves([c.name for c in first.choices], tree)) >= 2  # batches of tasks on one warm pool
 
 
 def test_none_mode_keeps_the_fitted_shapes_and_ground_mode_ignores_other_objects(fitted: tuple[Path, Path],

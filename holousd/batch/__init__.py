@@ -3,7 +3,7 @@
 :func:`run_tasks` is the engine the benchmark harness shares (``holousd bench --ray``).
 """
 
+from holousd._tasks import TaskOutcome, run_tasks
 from holousd.batch._batch import BatchConfig, BatchResult, batch_table, run_batch
-from holousd.batch._engine import TaskOutcome, run_tasks
 
 __all__ = ["BatchConfig", "BatchResult", "TaskOutcome", "batch_table", "run_batch", "run_tasks"]

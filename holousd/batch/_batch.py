@@ -20,7 +20,7 @@ from typing import Any
 
 from holousd._atomic import atomic_path
 from holousd._errors import HolousdError
-from holousd.batch._engine import TaskOutcome, run_tasks
+from holousd._tasks import TaskOutcome, run_tasks
 
 __all__ = ["BatchConfig", "BatchResult", "batch_table", "run_batch"]
 

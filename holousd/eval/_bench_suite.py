@@ -368,7 +368,7 @@ def run_bench(out: str | os.PathLike[str], config: BenchSuiteConfig | None = Non
             runs.append(bench_run(str(data_of[p]), str(out / "runs" / p / name), config.suite, name, p, config.seed,
                                   config.threads, config.samples, False))  # fmt: skip
     else:
-        from holousd.batch._engine import run_tasks
+        from holousd._tasks import run_tasks
 
         threads = config.threads or max(1, int(config.num_cpus))
         tasks = [(f"{name}/{p}", (str(data_of[p]), str(out / "runs" / p / name), config.suite, name, p, config.seed,

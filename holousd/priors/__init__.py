@@ -21,7 +21,7 @@ from holousd.priors._api import (
     make_proposer,
 )
 from holousd.priors._energy import ObservationEnergy, observation_energy, scored_among, seen_through_limit
-from holousd.priors._evidence import object_evidence
+from holousd.priors._evidence import object_evidence, object_neighbours
 
 __all__ = [
     "ENTRY_POINT_GROUP",
@@ -34,6 +34,7 @@ __all__ = [
     "available_proposers",
     "make_proposer",
     "object_evidence",
+    "object_neighbours",
     "observation_energy",
     "propose",
     "scored_among",

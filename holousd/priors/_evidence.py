@@ -10,7 +10,7 @@ from holousd.priors._api import FrameEvidence, ObjectEvidence
 from holousd.usd._scene import BACKGROUND, SceneGraph
 from holousd.usd._types import MeshData
 
-__all__ = ["object_evidence"]
+__all__ = ["object_evidence", "object_neighbours"]
 
 
 def _world(scene: SceneGraph, name: str) -> MeshData | None:
@@ -22,6 +22,25 @@ def _world(scene: SceneGraph, name: str) -> MeshData | None:
 
 
 _FROM_SCENE = object()
+
+
+def object_neighbours(scene: SceneGraph, name: str, *, support: str | None, placed: dict[str, MeshData] | None = None,
+                      margin: float = 0.05) -> dict[str, MeshData]:  # fmt: skip
+    """World meshes of ``name``'s support and of every object whose box comes within ``margin`` metres of its
+    fitted mesh's box; a shape in ``placed`` (one a search has chosen) replaces the scene's."""
+    world = scene.get_pose(name).apply(scene.get_mesh(name).points)
+    lo, hi = world.min(0) - margin, world.max(0) + margin
+    neighbours: dict[str, MeshData] = {}
+    for other in [BACKGROUND, *scene.objects()]:
+        if other == name:
+            continue
+        found = (placed or {}).get(other) or _world(scene, other)
+        if found is None or len(found.points) == 0:
+            continue
+        near = np.all(found.points.max(0) >= lo) and np.all(found.points.min(0) <= hi)
+        if other == support or (other != BACKGROUND and near):
+            neighbours[other] = found
+    return neighbours
 
 
 def object_evidence(scene: SceneGraph, obs: Observations, name: str, *, max_frames: int | None = 24,
@@ -71,16 +90,7 @@ def object_evidence(scene: SceneGraph, obs: Observations, name: str, *, max_fram
     # or a return from behind its silhouette (on the demo's phone capture, a box's candidates spanned 1.8 m)
     seen = seen[np.all((seen >= lo) & (seen <= hi), axis=1)]
     support = scene.get_support(name) if support is _FROM_SCENE else support
-    neighbours: dict[str, MeshData] = {}
-    for other in [BACKGROUND, *scene.objects()]:
-        if other == name:
-            continue
-        found = (placed or {}).get(other) or _world(scene, other)
-        if found is None or len(found.points) == 0:
-            continue
-        near = np.all(found.points.max(0) >= lo) and np.all(found.points.min(0) <= hi)
-        if other == support or (other != BACKGROUND and near):
-            neighbours[other] = found
+    neighbours = object_neighbours(scene, name, support=support, placed=placed, margin=margin)
     height = None
     below = neighbours.get(support) if support is not None else None
     if below is not None and len(below.faces):  # the support's surface under the object: rays cast straight down

@@ -148,8 +148,8 @@ PRESETS: dict[str, PipelineConfig] = {
 def preset(name: str, *, seed: int = 0, progress: bool = True, threads: int | None = None,
            search: str | None = None) -> PipelineConfig:  # fmt: skip
     """A copy of the named preset with the seed (fit, search, physics, appearance), progress and torch thread
-    settings (fit and appearance) and the search mode (``none``, ``ground``, ``tree``; None keeps the preset's)
-    applied."""
+    settings (fit and appearance; the search's worker processes: None, one per core) and the search mode (``none``,
+    ``ground``, ``tree``; None keeps the preset's) applied."""
     if name not in PRESETS:
         raise HolousdError(f"unknown preset {name!r}; choose one of {', '.join(PRESETS)}")
     if search is not None and search not in _search.MODES:
@@ -158,7 +158,7 @@ def preset(name: str, *, seed: int = 0, progress: bool = True, threads: int | No
     return replace(
         base,
         fit=replace(base.fit, seed=seed, progress=progress, threads=threads),
-        search=replace(base.search, seed=seed, progress=progress, mode=search or base.search.mode),
+        search=replace(base.search, seed=seed, progress=progress, mode=search or base.search.mode, workers=threads),
         physics=replace(base.physics, seed=seed),
         appearance=replace(base.appearance, seed=seed, progress=progress, threads=threads),
     )
@@ -229,7 +229,7 @@ def _usd_dict(value: Any) -> Any:
     return value
 
 
-_VOLATILE = {"progress", "threads", "device"}
+_VOLATILE = {"progress", "threads", "device", "workers", "ray"}
 """Config fields that do not change a stage's result (left out of the input hash)."""
 
 

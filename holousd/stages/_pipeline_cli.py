@@ -41,7 +41,12 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
                      help="s2 search: 'tree' (completion candidates chosen along the support tree, the "
                      "method), 'ground' (each object against the room only), 'none' (the fitted shapes); "
                      "default tree")  # fmt: skip
-    rec.add_argument("--threads", type=positive_int, default=None, help="torch CPU threads (default: torch's)")
+    rec.add_argument("--threads", type=positive_int, default=None,
+                     help="torch CPU threads of the fit and appearance, and worker processes of the search (default: "
+                     "torch's; one search worker per core)")  # fmt: skip
+    rec.add_argument("--ray", default=None, metavar="ADDRESS",
+                     help="propose and score the search's completion candidates as Ray tasks: 'local', 'auto' (the "
+                     "running cluster) or HOST:PORT; the same scene as without (needs holousd[ray])")  # fmt: skip
     rec.add_argument("--no-appearance", action="store_true", help="skip the appearance stage")
     rec.add_argument("--no-progress", action="store_true", help="no progress bars on stderr")
     rec.set_defaults(handler=_reconstruct)
@@ -118,6 +123,8 @@ def _reconstruct(args: argparse.Namespace) -> int:
                     search=args.search)  # fmt: skip
     if args.no_appearance:
         config = replace(config, appearance=replace(config.appearance, enabled=False))
+    if args.ray:
+        config = replace(config, search=replace(config.search, ray=args.ray))
     result = reconstruct(args.input, args.out, config, until=args.until, resume=args.resume)
     ran = [s.name for s in result.stages if not s.skipped]
     print(f"wrote {result.scene_file} ({len(ran)} stage(s) run, {result.total_s:.1f} s, "

@@ -34,6 +34,14 @@ Modes (``mode``; the ablation rows of ``holousd bench --search``):
   mode knows of physics).
 - ``none``: the stage-1 shapes are kept (the ObjectSDF++-like row); the layer records the mode and nothing else.
 
+Work is spread over processes (``workers``, one per core by default) or Ray tasks (``ray``): proposing an object's
+candidates, re-rendering them (E_obs) and standing them on the parent's chosen shape (E_stable, E_touch) need
+that one choice and nothing else, so the objects of one depth of the support tree (a run of the breadth-first
+order none of which rests on another of the run) go to the workers together, each worker keeping its proposers
+(a learned prior's weights) loaded between tasks. E_pene against the neighbours placed so far, the choice and the
+revisit follow here in breadth-first order; an object whose parent a revisit changed after its evidence was
+gathered is proposed again on the parent's new shape. Any number of workers, or Ray, gives the same scene.
+
 The chosen candidate's mesh and SDF replace the fitted ones in the layer (the physics set-up then sets every
 object on its support and derives its collider from that mesh). Every object records, in ``HoloEnergyAPI``, the
 candidates tried (proposer and seed), each one's total and the chosen candidate's energies; the stage's wall time
@@ -110,6 +118,11 @@ class SearchConfig:
     """Writer name recorded on the nodes the stage changes."""
     progress: bool = False
     """Print one line per object on stderr (does not change the result)."""
+    workers: int | None = None
+    """Processes that propose and re-render candidates, the objects of one depth of the support tree at a time
+    (None: one per core this process may use; 1: all in this process). Any number gives the same scene."""
+    ray: str | None = None
+    """Run those as Ray tasks instead: ``"local"``, ``"auto"`` or ``"HOST:PORT"`` (None: local processes)."""
 
 
 @dataclass(kw_only=True)
@@ -183,28 +196,43 @@ class _Scorer:
     def physics(self, world: MeshData, parent: str, parent_mesh: MeshData | None,
                 neighbours: dict[str, MeshData]) -> tuple[float, float, float]:  # fmt: skip
         """(E_stable, touch cm, pene cm^3) of a world mesh on its parent."""
-        from holousd.geometry._contact import cut_by_plane, overlap
-        from holousd.physics._static import static_stability
+        stable, touch = self.standing(world, parent, parent_mesh)
+        return stable, touch, self.penetration(world, parent, neighbours)
+
+    def _body(self, world: MeshData, parent: str) -> tuple:
+        from holousd.geometry._contact import cut_by_plane
 
         body = (world.points, world.faces)
-        if parent == BACKGROUND:
-            support = self.floor if self.floor is not None else (
-                None if parent_mesh is None else (parent_mesh.points, parent_mesh.faces))  # fmt: skip
-            if self.floor is not None and float(world.points[:, 2].min()) < self.floor:
-                # what reaches under the floor, the physics set-up cuts away (its base cut): the check stands
-                # the shape as it will be, not on the deepest of the legs the fit sank unevenly into the floor
-                body = cut_by_plane(body, (0.0, 0.0, 1.0), self.floor)[0]
+        if parent == BACKGROUND and self.floor is not None and float(world.points[:, 2].min()) < self.floor:
+            # what reaches under the floor, the physics set-up cuts away (its base cut): the check stands the
+            # shape as it will be, not on the deepest of the legs the fit sank unevenly into the floor
+            body = cut_by_plane(body, (0.0, 0.0, 1.0), self.floor)[0]
+        return body
+
+    def standing(self, world: MeshData, parent: str, parent_mesh: MeshData | None) -> tuple[float, float]:
+        """(E_stable, touch cm) of a world mesh on its parent (the parent's shape alone: a worker's part)."""
+        from holousd.physics._static import static_stability
+
+        if parent == BACKGROUND and self.floor is not None:
+            support = self.floor
         else:
             support = None if parent_mesh is None else (parent_mesh.points, parent_mesh.faces)
-        verdict = static_stability(body, support, friction=self.config.friction, seed=self.config.seed)
-        touch = 100.0 * abs(verdict.gap_m) if math.isfinite(verdict.gap_m) else 5.0
+        verdict = static_stability(self._body(world, parent), support, friction=self.config.friction,
+                                   seed=self.config.seed)  # fmt: skip
+        return verdict.energy, 100.0 * abs(verdict.gap_m) if math.isfinite(verdict.gap_m) else 5.0
+
+    def penetration(self, world: MeshData, parent: str, neighbours: dict[str, MeshData]) -> float:
+        """Intersection volume, cm^3, of a world mesh with its parent above its base band and the neighbours."""
+        from holousd.geometry._contact import overlap
+
+        body = self._body(world, parent)
         pene = 0.0
         base = float(world.points[:, 2].min()) + self.config.parent_band
         for other, mesh in neighbours.items():
             if other != BACKGROUND:  # the parent's top where the child sinks in is E_touch's and the set-up's
                 above = base if other == parent else None
                 pene += 1e6 * overlap(body, (mesh.points, mesh.faces), above=above).volume_m3
-        return verdict.energy, touch, pene
+        return pene
 
     def total(self, e_obs: float, rejected: bool, stable: float, touch: float, pene: float) -> float:
         c = self.config
@@ -230,13 +258,15 @@ def _floor(scene: SceneGraph) -> float | None:
 def search(scene: SceneGraph, obs, config: SearchConfig | None = None,  # noqa: ANN001
            out_dir: str | Path | None = None, log: Callable[[str], None] | None = None) -> SearchResult:  # fmt: skip
     """Run the search on a fitted scene and write ``15_search.usda`` (see the module docstring)."""
+    from holousd._tasks import TaskPool
     from holousd.graph import infer_relations
-    from holousd.priors import make_proposer, object_evidence, scored_among
+    from holousd.priors import object_evidence, object_neighbours
 
     config = config or SearchConfig()
     if config.mode not in MODES:
         raise HolousdError(f"search mode {config.mode!r}: choose one of {', '.join(MODES)}")
-    proposers = [make_proposer(p, **config.proposer_options.get(p, {})) for p in config.proposers]
+    for p in config.proposers:  # an unknown or broken proposer is refused before anything is written
+        _proposer(p, config.proposer_options.get(p, {}))
     out_dir = Path(out_dir) if out_dir is not None else Path(scene.root_layer.realPath).parent
     start = time.perf_counter()
     names = [n for n in scene.objects() if _has_mesh(scene, n)]
@@ -253,45 +283,63 @@ def search(scene: SceneGraph, obs, config: SearchConfig | None = None,  # noqa: 
     candidates: dict[str, list] = {}  # name -> [(Candidate, world mesh)]
     by_name: dict[str, ObjectChoice] = {}
     ground = config.mode == "ground"
-    for count, name in enumerate(relations.breadth_first()):
-        t0 = time.perf_counter()
-        parent = relations.support.get(name, BACKGROUND)
-        evidence = object_evidence(scene, obs, name, max_frames=config.max_frames, support=parent,
-                                   placed=None if ground else placed, floor=scorer.floor)  # fmt: skip
-        near = {} if ground else {k: v for k, v in evidence.neighbours.items() if k in placed or k == parent}
-        parent_mesh = evidence.neighbours.get(parent)
-        found, scores = [], []
-        limit = config.max_seen_through
-        for proposer in proposers:
-            for cand in proposer.propose(evidence, config.k, config.seed):
-                # the fitted shape, first, sets the limit: its own share is what this resolution gives
-                e, limit = scored_among(cand, evidence, limit, baseline=not found,
-                                        max_seen_through=config.max_seen_through)  # fmt: skip
-                world = _world(poses[name], cand.mesh)
-                if ground and parent != BACKGROUND:
-                    stable, touch, pene = 0.0, 0.0, 0.0
-                else:
-                    stable, touch, pene = scorer.physics(world, parent, parent_mesh, near)
-                total = scorer.total(e.energy, e.rejected, stable, touch, pene)
-                scores.append(CandidateScore(proposer=cand.proposer, seed=cand.seed, note=cand.note,
-                                             observation=e.energy, rejected=e.rejected, stable=stable,
-                                             touch_cm=touch, pene_cm3=pene, total=total))  # fmt: skip
-                found.append((cand, world))
-        if not scores:
-            continue
-        chosen = _pick(scores)
-        choice = ObjectChoice(name=name, parent=parent, scores=scores, chosen=chosen, wall_s=0.0)
-        if config.mode == "tree" and config.revisit and scores[chosen].stable > 0 and parent in by_name:
-            _revisit(name, choice, found, by_name[parent], candidates[parent], relations, placed, scorer)
-        placed[name] = found[choice.chosen][1]
-        candidates[name] = found
-        choice.wall_s = time.perf_counter() - t0
-        by_name[name] = choice
-        choices.append(choice)
-        if config.progress and log is not None:
-            b = choice.best
-            log(f"search [{count + 1}/{len(names)}] {name}: {b.label} (total {b.total:.2f}, "
-                f"{'stands' if b.stable == 0 else 'does not stand'}) of {len(scores)} in {choice.wall_s:.1f} s")
+    specs = [(p, config.proposer_options.get(p, {})) for p in config.proposers]
+    order = relations.breadth_first()
+
+    def evidence(name: str, parent: str):  # noqa: ANN202 - ObjectEvidence
+        return object_evidence(scene, obs, name, max_frames=config.max_frames, support=parent,
+                               placed=None if ground else placed, floor=scorer.floor)  # fmt: skip
+
+    with TaskPool(workers=_workers(config), ray=config.ray, memory_mb=2000.0) as pool:
+        for wave in _waves(order, relations):
+            # the costly part, proposing and re-rendering, needs only the parent's choice: spread over the workers
+            gathered = {n: evidence(n, relations.support.get(n, BACKGROUND)) for n in wave}
+            basis = {n: placed.get(relations.support.get(n, BACKGROUND)) for n in wave}
+            outcomes = pool.run(_proposed, [(n, (specs, gathered[n], config.k, config.seed, config.max_seen_through,
+                                                 scorer, ground)) for n in wave])  # fmt: skip
+            for name, outcome in zip(wave, outcomes, strict=True):
+                if not outcome.ok:
+                    raise HolousdError(f"search, {name}: {outcome.error}")
+                t0 = time.perf_counter()
+                parent = relations.support.get(name, BACKGROUND)
+                proposed, worker_s = outcome.value, outcome.wall_s
+                if placed.get(parent) is not basis[name]:
+                    # a sibling's revisit changed the parent's shape after this object's evidence was gathered:
+                    # gather and propose again on the shape it rests on now (as one object at a time would)
+                    proposed = _proposed(specs, evidence(name, parent), config.k, config.seed,
+                                         config.max_seen_through, scorer, ground)  # fmt: skip
+                near = {}
+                if not ground:  # E_pene: the parent and the neighbours placed so far, this wave's included
+                    around = object_neighbours(scene, name, support=parent, placed={**fitted, **placed})
+                    near = {k: v for k, v in around.items() if k in placed or k == parent}
+                found, scores = [], []
+                for cand, e_obs, rejected, standing in proposed:
+                    world = _world(poses[name], cand.mesh)
+                    if ground and parent != BACKGROUND:
+                        stable, touch, pene = 0.0, 0.0, 0.0
+                    else:
+                        (stable, touch), pene = standing, scorer.penetration(world, parent, near)
+                    total = scorer.total(e_obs, rejected, stable, touch, pene)
+                    scores.append(CandidateScore(proposer=cand.proposer, seed=cand.seed, note=cand.note,
+                                                 observation=e_obs, rejected=rejected, stable=stable,
+                                                 touch_cm=touch, pene_cm3=pene, total=total))  # fmt: skip
+                    found.append((cand, world))
+                if not scores:
+                    continue
+                chosen = _pick(scores)
+                choice = ObjectChoice(name=name, parent=parent, scores=scores, chosen=chosen, wall_s=0.0)
+                if config.mode == "tree" and config.revisit and scores[chosen].stable > 0 and parent in by_name:
+                    _revisit(name, choice, found, by_name[parent], candidates[parent], relations, placed, scorer)
+                placed[name] = found[choice.chosen][1]
+                candidates[name] = found
+                choice.wall_s = worker_s + time.perf_counter() - t0
+                by_name[name] = choice
+                choices.append(choice)
+                if config.progress and log is not None:
+                    b = choice.best
+                    log(f"search [{len(choices)}/{len(names)}] {name}: {b.label} (total {b.total:.2f}, "
+                        f"{'stands' if b.stable == 0 else 'does not stand'}) of {len(scores)} in "
+                        f"{choice.wall_s:.1f} s")  # fmt: skip
     for choice in choices:
         cand = candidates[choice.name][choice.chosen][0]
         if cand.proposer != "stage1":
@@ -307,6 +355,57 @@ def search(scene: SceneGraph, obs, config: SearchConfig | None = None,  # noqa: 
         scene.set_support(choice.name, choice.parent)
     scene.save()
     return SearchResult(scene=scene, mode=config.mode, choices=choices, wall_s=time.perf_counter() - start)
+
+
+_WARM: dict[tuple[str, str], object] = {}
+"""Proposers made in this process, by name and options: a worker keeps a learned prior's weights loaded."""
+
+
+def _proposer(name: str, options: dict):  # noqa: ANN202 - CompletionProposer
+    from holousd.priors import make_proposer
+
+    key = (name, repr(sorted(options.items())))
+    if key not in _WARM:
+        _WARM[key] = make_proposer(name, **options)
+    return _WARM[key]
+
+
+def _proposed(specs: list[tuple[str, dict]], evidence, k: int, seed: int, max_seen_through: float,  # noqa: ANN001
+              scorer: _Scorer, ground: bool) -> list[tuple[object, float, bool, tuple[float, float]]]:  # fmt: skip
+    """Every proposer's candidates for one object with their E_obs and, on the parent's chosen shape, E_stable and
+    touch: ``[(Candidate, E_obs, rejected, (E_stable, touch cm))]``, the fitted shape first (it sets the
+    seen-through baseline). A worker's task: it needs the object's evidence alone. ``ground``: an object on another
+    gets E_obs alone (0, 0)."""
+    from holousd.priors import scored_among
+
+    parent = evidence.support or BACKGROUND
+    physics = not (ground and parent != BACKGROUND)
+    out: list[tuple[object, float, bool, tuple[float, float]]] = []
+    limit = max_seen_through
+    for name, options in specs:
+        for cand in _proposer(name, options).propose(evidence, k, seed):
+            e, limit = scored_among(cand, evidence, limit, baseline=not out, max_seen_through=max_seen_through)
+            standing = (0.0, 0.0) if not physics else scorer.standing(
+                _world(evidence.pose, cand.mesh), parent, evidence.neighbours.get(parent))  # fmt: skip
+            out.append((cand, e.energy, e.rejected, standing))
+    return out
+
+
+def _waves(order: list[str], relations) -> list[list[str]]:  # noqa: ANN001
+    """``order`` (breadth-first) cut into runs in which no object rests on another of the same run: each run's
+    proposals need only choices made before it."""
+    waves: list[list[str]] = []
+    for name in order:
+        if not waves or relations.support.get(name, BACKGROUND) in waves[-1]:
+            waves.append([])
+        waves[-1].append(name)
+    return waves
+
+
+def _workers(config: SearchConfig) -> int:
+    from holousd._tasks import _cores
+
+    return max(1, config.workers) if config.workers is not None else _cores()
 
 
 def _has_mesh(scene: SceneGraph, name: str) -> bool:

@@ -1,6 +1,8 @@
 """Run independent tasks on this machine's cores or on a Ray cluster, with the same results either way.
 
-A task is a module-level function and its (picklable) arguments. :func:`run_tasks` runs a list of them:
+A task is a module-level function and its (picklable) arguments. :func:`run_tasks` runs a list of them (``holousd
+batch``'s captures, ``holousd bench``'s scenes); a :class:`TaskPool` keeps its workers between lists (the search
+stage's objects, one depth of the support tree at a time):
 
 - ``ray=None``: in a local process pool of ``workers`` processes (spawned, so that torch and Warp start clean in
   each; Ray is not imported); ``workers=1`` runs them one after another in this process.
@@ -16,15 +18,16 @@ its wall time inside the worker and the time from submission to its result here.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
 from holousd._errors import HolousdError
 
-__all__ = ["TaskOutcome", "run_tasks"]
+__all__ = ["TaskOutcome", "TaskPool", "run_tasks"]
 
 
 @dataclass(kw_only=True)
@@ -78,6 +81,103 @@ def _connect(address: str) -> None:
         ) from None
 
 
+class TaskPool:
+    """Workers that stay up between calls of :meth:`run` (a search runs one batch of tasks per depth of the support
+    tree; spawning a process per batch would cost more than the tasks): ``with TaskPool(workers=2) as pool:``.
+
+    ``workers`` local processes (None: one per core; 1: in this process, nothing spawned) or, with ``ray``, Ray
+    tasks declaring ``num_cpus`` cores and ``memory_mb`` MiB each (Ray keeps its worker processes warm itself).
+    """
+
+    def __init__(self, *, workers: int | None = None, ray: str | None = None, num_cpus: float = 1.0,
+                 memory_mb: float | None = None) -> None:  # fmt: skip
+        self.ray = ray
+        self.workers = max(1, workers or _cores())
+        self.num_cpus = num_cpus
+        self.memory_mb = memory_mb
+        self._pool: Any = None
+
+    def __enter__(self) -> TaskPool:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Stop the local worker processes (a Ray cluster stays up)."""
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = None
+
+    def run(self, fn: Callable[..., Any], tasks: list[tuple[str, tuple]],
+            on_done: Callable[[TaskOutcome], None] | None = None) -> list[TaskOutcome]:  # fmt: skip
+        """Run ``fn(*args)`` for every ``(key, args)`` of ``tasks``; outcomes in the order of ``tasks``."""
+        if not tasks:
+            return []
+        if self.ray is not None:
+            return _run_ray(fn, tasks, self.ray, self.num_cpus, self.memory_mb, on_done)
+        outcomes: dict[int, TaskOutcome] = {}
+        submitted = time.perf_counter()
+
+        def done(k: int, result: tuple[bool, Any, float]) -> None:
+            ok, value, wall = result
+            outcome = TaskOutcome(key=tasks[k][0], ok=ok, value=value if ok else None, error=None if ok else value,
+                                  wall_s=wall, turnaround_s=time.perf_counter() - submitted)  # fmt: skip
+            outcomes[k] = outcome
+            if on_done is not None:
+                on_done(outcome)
+
+        if self.workers == 1 or (len(tasks) == 1 and self._pool is None):  # nothing to spread: no process spawned
+            for k, (_, args) in enumerate(tasks):
+                done(k, _call(fn, args))
+        else:
+            from concurrent.futures import as_completed
+
+            if self._pool is None:
+                import multiprocessing
+                from concurrent.futures import ProcessPoolExecutor
+
+                self._pool = ProcessPoolExecutor(max_workers=self.workers,
+                                                 mp_context=multiprocessing.get_context("spawn"))  # fmt: skip
+            with _child_threads(max(1, _cores() // self.workers)):  # workers spawn on submit, with this env
+                futures = {self._pool.submit(_call, fn, args): k for k, (_, args) in enumerate(tasks)}
+            for future in as_completed(futures):
+                try:
+                    result = future.result()
+                except Exception as exc:  # noqa: BLE001 - the worker died (killed, out of memory): that task fails
+                    result = (False, f"the worker process died ({type(exc).__name__}: {_one_line(str(exc))[:300]})",
+                              0.0)  # fmt: skip
+                done(futures[future], result)
+        return [outcomes[k] for k in range(len(tasks))]
+
+
+_THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def _cores() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not Linux
+        return os.cpu_count() or 1
+
+
+@contextlib.contextmanager
+def _child_threads(threads: int) -> Iterator[None]:
+    """Processes spawned inside take ``threads`` BLAS / OpenMP threads (unless the user set them): two workers on
+    two cores each running two BLAS threads made the search's proposals 1.7x slower than one worker alone."""
+    saved = {v: os.environ.get(v) for v in _THREAD_VARS}
+    for v in _THREAD_VARS:
+        os.environ.setdefault(v, str(threads))
+    try:
+        yield
+    finally:
+        for v, value in saved.items():
+            if value is None:
+                os.environ.pop(v, None)
+            else:
+                os.environ[v] = value
+
+
 def run_tasks(fn: Callable[..., Any], tasks: list[tuple[str, tuple]], *, workers: int | None = None,
               ray: str | None = None, num_cpus: float = 1.0, memory_mb: float | None = None,
               on_done: Callable[[TaskOutcome], None] | None = None) -> list[TaskOutcome]:  # fmt: skip
@@ -92,34 +192,9 @@ def run_tasks(fn: Callable[..., Any], tasks: list[tuple[str, tuple]], *, workers
         memory_mb: Memory each Ray task declares, MiB (None: none declared).
         on_done: Called here with each outcome as it arrives (a progress bar).
     """
-    if not tasks:
-        return []
-    if ray is not None:
-        return _run_ray(fn, tasks, ray, num_cpus, memory_mb, on_done)
-    workers = max(1, min(workers or os.cpu_count() or 1, len(tasks)))
-    outcomes: dict[int, TaskOutcome] = {}
-    submitted = time.perf_counter()
-
-    def done(k: int, result: tuple[bool, Any, float]) -> None:
-        ok, value, wall = result
-        outcome = TaskOutcome(key=tasks[k][0], ok=ok, value=value if ok else None, error=None if ok else value,
-                              wall_s=wall, turnaround_s=time.perf_counter() - submitted)  # fmt: skip
-        outcomes[k] = outcome
-        if on_done is not None:
-            on_done(outcome)
-
-    if workers == 1:
-        for k, (_, args) in enumerate(tasks):
-            done(k, _call(fn, args))
-    else:
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor, as_completed
-
-        with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
-            futures = {pool.submit(_call, fn, args): k for k, (_, args) in enumerate(tasks)}
-            for future in as_completed(futures):
-                done(futures[future], future.result())
-    return [outcomes[k] for k in range(len(tasks))]
+    workers = max(1, min(workers or _cores(), len(tasks) or 1))
+    with TaskPool(workers=workers, ray=ray, num_cpus=num_cpus, memory_mb=memory_mb) as pool:
+        return pool.run(fn, tasks, on_done)
 
 
 def _run_ray(fn: Callable[..., Any], tasks: list[tuple[str, tuple]], address: str, num_cpus: float,
