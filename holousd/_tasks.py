@@ -27,7 +27,7 @@ from typing import Any
 
 from holousd._errors import HolousdError
 
-__all__ = ["TaskOutcome", "TaskPool", "run_tasks"]
+__all__ = ["TaskOutcome", "TaskPool", "overhead", "require_ray", "run_tasks"]
 
 
 @dataclass(kw_only=True)
@@ -46,25 +46,65 @@ class TaskOutcome:
     """Seconds the task ran inside its worker."""
     turnaround_s: float = 0.0
     """Seconds from submitting the task to holding its result (queueing behind other tasks included)."""
+    submitted: float = 0.0
+    started: float = 0.0
+    ended: float = 0.0
+    received: float = 0.0
+    """Seconds since the epoch: submitted here, started and ended in its worker, its result held here."""
 
 
 def _one_line(text: str) -> str:
     return " ".join(str(text).split())
 
 
-def _call(fn: Callable[..., Any], args: tuple) -> tuple[bool, Any, float]:
-    """Run ``fn(*args)`` in a worker: ``(True, value, wall_s)`` or ``(False, one-line error, wall_s)``."""
+def _call(fn: Callable[..., Any], args: tuple) -> tuple[bool, Any, float, float, float]:
+    """Run ``fn(*args)`` in a worker: ``(ok, value or one-line error, wall_s, started, ended)``, the last two in
+    seconds since the epoch (how long a free worker waited for its next task)."""
+    started = time.time()
     start = time.perf_counter()
     try:
-        value = fn(*args)
+        ok, value = True, fn(*args)
     except HolousdError as exc:
-        return False, _one_line(str(exc)), time.perf_counter() - start
+        ok, value = False, _one_line(str(exc))
     except Exception as exc:  # noqa: BLE001 - one failing task must not stop the others; reported, not hidden
-        return False, f"internal error ({type(exc).__name__}: {_one_line(str(exc))})", time.perf_counter() - start
-    return True, value, time.perf_counter() - start
+        ok, value = False, f"internal error ({type(exc).__name__}: {_one_line(str(exc))})"
+    return ok, value, time.perf_counter() - start, started, time.time()
+
+
+def require_ray() -> None:
+    """Raise a one-line error when Ray is not installed (checked before any work, not when the first task goes)."""
+    try:
+        import ray  # noqa: F401
+    except ModuleNotFoundError:
+        raise HolousdError("--ray needs Ray: pip install 'holousd[ray]' (or run without --ray: local worker "
+                           "processes)") from None
+
+
+def _outcome(key: str, result: tuple[bool, Any, float, float, float], submitted: float) -> TaskOutcome:
+    ok, value, wall, started, ended = result
+    received = time.time()
+    return TaskOutcome(key=key, ok=ok, value=value if ok else None, error=None if ok else value, wall_s=wall,
+                       turnaround_s=received - submitted, submitted=submitted, started=started, ended=ended,
+                       received=received)  # fmt: skip
+
+
+def overhead(outcomes: list[TaskOutcome], slots: int) -> dict[str, float]:
+    """What running ``outcomes`` on ``slots`` workers cost beyond the tasks themselves, seconds per task:
+    ``dispatch_s``, how long a free worker waited before its next task started (the first ``slots`` tasks: from
+    submission; then each start against the slot the earliest unmatched end freed: start-up, scheduling,
+    shipping the arguments), and ``return_s``, from a task's end in its worker to its result here."""
+    done = [o for o in outcomes if o.ended >= o.started > 0]
+    if not done:
+        return {"dispatch_s": 0.0, "return_s": 0.0}
+    starts = sorted(o.started for o in done)
+    frees = sorted([done[0].submitted] * min(slots, len(done)) + [o.ended for o in done])
+    dispatch = [max(0.0, start - frees[j]) for j, start in enumerate(starts)]
+    return {"dispatch_s": sum(dispatch) / len(done),
+            "return_s": sum(max(0.0, o.received - o.ended) for o in done) / len(done)}  # fmt: skip
 
 
 def _connect(address: str) -> None:
+    require_ray()
     import ray
 
     if ray.is_initialized():  # a cluster this process already joined (a test's local cluster, a notebook)
@@ -117,15 +157,12 @@ class TaskPool:
         if self.ray is not None:
             return _run_ray(fn, tasks, self.ray, self.num_cpus, self.memory_mb, on_done)
         outcomes: dict[int, TaskOutcome] = {}
-        submitted = time.perf_counter()
+        submitted = time.time()
 
-        def done(k: int, result: tuple[bool, Any, float]) -> None:
-            ok, value, wall = result
-            outcome = TaskOutcome(key=tasks[k][0], ok=ok, value=value if ok else None, error=None if ok else value,
-                                  wall_s=wall, turnaround_s=time.perf_counter() - submitted)  # fmt: skip
-            outcomes[k] = outcome
+        def done(k: int, result: tuple[bool, Any, float, float, float]) -> None:
+            outcomes[k] = _outcome(tasks[k][0], result, submitted)
             if on_done is not None:
-                on_done(outcome)
+                on_done(outcomes[k])
 
         if self.workers == 1 or (len(tasks) == 1 and self._pool is None):  # nothing to spread: no process spawned
             for k, (_, args) in enumerate(tasks):
@@ -145,8 +182,9 @@ class TaskPool:
                 try:
                     result = future.result()
                 except Exception as exc:  # noqa: BLE001 - the worker died (killed, out of memory): that task fails
+                    now = time.time()
                     result = (False, f"the worker process died ({type(exc).__name__}: {_one_line(str(exc))[:300]})",
-                              0.0)  # fmt: skip
+                              0.0, now, now)  # fmt: skip
                 done(futures[future], result)
         return [outcomes[k] for k in range(len(tasks))]
 
@@ -206,7 +244,7 @@ def _run_ray(fn: Callable[..., Any], tasks: list[tuple[str, tuple]], address: st
     if memory_mb:
         options["memory"] = int(memory_mb * 2**20)
     remote = ray.remote(**options)(_call)
-    submitted = time.perf_counter()
+    submitted = time.time()
     refs = [remote.remote(fn, args) for _, args in tasks]
     index = {ref: k for k, ref in enumerate(refs)}
     outcomes: dict[int, TaskOutcome] = {}
@@ -216,12 +254,12 @@ def _run_ray(fn: Callable[..., Any], tasks: list[tuple[str, tuple]], address: st
         for ref in ready:
             k = index[ref]
             try:
-                ok, value, wall = ray.get(ref)
+                result = ray.get(ref)
             except Exception as exc:  # noqa: BLE001 - the worker died (killed, out of memory): that task fails
-                ok, value, wall = False, f"the Ray task failed ({type(exc).__name__}: {_one_line(str(exc))[:300]})", 0.0
-            outcome = TaskOutcome(key=tasks[k][0], ok=ok, value=value if ok else None, error=None if ok else value,
-                                  wall_s=wall, turnaround_s=time.perf_counter() - submitted)  # fmt: skip
-            outcomes[k] = outcome
+                now = time.time()
+                result = (False, f"the Ray task failed ({type(exc).__name__}: {_one_line(str(exc))[:300]})", 0.0,
+                          now, now)  # fmt: skip
+            outcomes[k] = _outcome(tasks[k][0], result, submitted)
             if on_done is not None:
-                on_done(outcome)
+                on_done(outcomes[k])
     return [outcomes[k] for k in range(len(tasks))]

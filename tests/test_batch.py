@@ -155,6 +155,17 @@ def test_a_task_pool_keeps_its_workers_and_gives_each_its_share_of_the_cores(mon
     assert "OMP_NUM_THREADS" not in __import__("os").environ  # this process's environment as it was
 
 
+def test_ray_overhead_is_the_wait_of_a_free_worker_and_the_trip_back() -> None:
+    from holousd._tasks import TaskOutcome, overhead
+
+    def task(started: float, ended: float) -> TaskOutcome:
+        return TaskOutcome(key="t", ok=True, submitted=100.0, started=started, ended=ended, received=ended + 0.2)
+
+    # two slots: two tasks start 1.0 and 1.5 s after submission; the third starts 0.5 s after the first end
+    cost = overhead([task(101.0, 111.0), task(101.5, 106.5), task(107.0, 112.0)], slots=2)
+    assert cost["dispatch_s"] == pytest.approx((1.0 + 1.5 + 0.5) / 3) and cost["return_s"] == pytest.approx(0.2)
+
+
 def test_batch_refuses_bad_arguments_before_any_task(captures: list[Path], tmp_path: Path) -> None:
     from holousd._errors import HolousdError
 

@@ -52,11 +52,12 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _batch(args: argparse.Namespace) -> int:
+    from holousd._tasks import require_ray
     from holousd.batch._batch import BatchConfig, batch_table, run_batch
     from holousd.stages._pipeline import preset
 
     if args.ray is not None:
-        _require_ray()
+        require_ray()
     config = BatchConfig(pipeline=preset(args.preset, seed=args.seed, progress=False, search=args.search),
                          until=args.until,
                          workers=args.workers, ray=args.ray, num_cpus=args.cpus_per_task,
@@ -69,13 +70,3 @@ def _batch(args: argparse.Namespace) -> int:
         print(f"{len(result.rows) - len(result.failed)} of {len(result.rows)} captures done in "
               f"{result.wall_s:.1f} s; wrote {result.file}")  # fmt: skip
     return 1 if result.failed else 0
-
-
-def _require_ray() -> None:
-    from holousd._errors import HolousdError
-
-    try:
-        import ray  # noqa: F401
-    except ModuleNotFoundError:
-        raise HolousdError("--ray needs Ray: pip install 'holousd[ray]' (or run without --ray: a local process "
-                           "pool)") from None

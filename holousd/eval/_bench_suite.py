@@ -368,7 +368,7 @@ def run_bench(out: str | os.PathLike[str], config: BenchSuiteConfig | None = Non
             runs.append(bench_run(str(data_of[p]), str(out / "runs" / p / name), config.suite, name, p, config.seed,
                                   config.threads, config.samples, False))  # fmt: skip
     else:
-        from holousd._tasks import run_tasks
+        from holousd._tasks import overhead, run_tasks
 
         threads = config.threads or max(1, int(config.num_cpus))
         tasks = [(f"{name}/{p}", (str(data_of[p]), str(out / "runs" / p / name), config.suite, name, p, config.seed,
@@ -386,11 +386,13 @@ def run_bench(out: str | os.PathLike[str], config: BenchSuiteConfig | None = Non
         import ray
 
         slots = max(1.0, float(ray.cluster_resources().get("CPU", 1.0)) // config.num_cpus)
+        cost = overhead(outcomes, int(slots))
         engine = {"engine": f"ray {config.ray}", "slots": slots, "tasks": len(outcomes), "wall_s": wall,
                   "task_wall_s": inside,
-                  # worker time not spent inside a task (start-up, scheduling, transfers, the idle tail), per task
-                  "overhead_per_task_s": max(0.0, (wall * min(slots, len(outcomes)) - inside)
-                                             / len(outcomes))}  # fmt: skip
+                  # Ray's own cost per task: a free worker waiting for its next task, and the result coming back
+                  "overhead_per_task_s": cost["dispatch_s"] + cost["return_s"], **cost,
+                  # worker time outside any task, the idle tail of the last tasks included, per task
+                  "idle_per_task_s": max(0.0, (wall * min(slots, len(outcomes)) - inside) / len(outcomes))}  # fmt: skip
     if config.ray is None:
         engine["wall_s"] = time.perf_counter() - start
     files = []

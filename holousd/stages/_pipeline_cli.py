@@ -124,6 +124,9 @@ def _reconstruct(args: argparse.Namespace) -> int:
     if args.no_appearance:
         config = replace(config, appearance=replace(config.appearance, enabled=False))
     if args.ray:
+        from holousd._tasks import require_ray
+
+        require_ray()
         config = replace(config, search=replace(config.search, ray=args.ray))
     result = reconstruct(args.input, args.out, config, until=args.until, resume=args.resume)
     ran = [s.name for s in result.stages if not s.skipped]
@@ -209,9 +212,9 @@ def _bench(args: argparse.Namespace) -> int:
                               threads=args.threads, ray=args.ray,
                               sensors=[s.strip() for s in args.sensor.split(",") if s.strip()])  # fmt: skip
     if args.ray is not None:
-        from holousd.batch._cli import _require_ray
+        from holousd._tasks import require_ray
 
-        _require_ray()
+        require_ray()
     result = run_bench(args.out, config)
     for path in result.files:
         print(f"wrote {path}")
