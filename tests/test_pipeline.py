@@ -183,6 +183,31 @@ def test_records_are_read_back(recon: tuple[Path, _pipeline.PipelineResult]) -> 
     assert records[1].config["iterations"] == 2 and records[1].wall_s == pytest.approx(recon[1].stages[1].wall_s)
 
 
+def test_every_mesh_has_normals_and_nvidias_validator_finds_none_missing(
+        recon: tuple[Path, _pipeline.PipelineResult], tmp_path: Path) -> None:  # fmt: skip
+    from pxr import Usd, UsdGeom
+
+    scene = recon[0] / "scene.usda"
+    stage = Usd.Stage.Open(str(scene))
+    meshes = [UsdGeom.Mesh(p) for p in stage.Traverse() if p.IsA(UsdGeom.Mesh)]
+    assert len(meshes) > 10
+    for mesh in meshes:  # render meshes smooth (a normal per point), colliders flat (one per face)
+        normals, points = mesh.GetNormalsAttr().Get(), mesh.GetPointsAttr().Get()
+        counts = mesh.GetFaceVertexCountsAttr().Get()
+        expected = len(points) if mesh.GetNormalsInterpolation() == UsdGeom.Tokens.vertex else len(counts)
+        assert normals is not None and len(normals) == expected, mesh.GetPath()
+        assert np.allclose(np.linalg.norm(np.asarray(normals), axis=1), 1.0, atol=1e-4), mesh.GetPath()
+    tool = shutil.which("nvidia_usd_validate")
+    if tool is None:
+        pytest.skip("NVIDIA's validator is not installed (pip install usd-validation-nvidia: the dev extra has it)")
+    import subprocess
+
+    report = tmp_path / "nvidia.json"
+    subprocess.run([tool, str(scene), "--json-output", str(report)], capture_output=True, timeout=300)
+    rules = {r["rule"]["name"]: r.get("issues", []) for r in json.loads(report.read_text())["rules"]}
+    assert not rules.get("NormalsExistChecker"), rules.get("NormalsExistChecker")[:3]
+
+
 def test_relations_inferred_from_ground_truth_meshes(capture: Path) -> None:
     import trimesh
 

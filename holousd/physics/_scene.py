@@ -19,6 +19,7 @@ from pxr import Gf, Sdf, Tf, Usd, UsdGeom, UsdPhysics, UsdShade
 from holousd._errors import SceneError
 from holousd.usd import read_mesh
 from holousd.usd._layers import open_layer_stack, usd_error_text
+from holousd.usd._scene import set_normals
 
 from ._errors import PhysicsInputError
 
@@ -358,6 +359,8 @@ def author_collider_mesh(
     faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     mesh.CreateFaceVertexCountsAttr([3] * len(faces))
     mesh.CreateFaceVertexIndicesAttr([int(i) for i in faces.ravel()])
+    set_normals(mesh, np.asarray(points, float), faces, smooth=False)  # hulls and slabs: flat faces
+    mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
     mesh.CreatePurposeAttr(UsdGeom.Tokens.guide)
     UsdPhysics.CollisionAPI.Apply(mesh.GetPrim())
     UsdPhysics.MeshCollisionAPI.Apply(mesh.GetPrim()).CreateApproximationAttr(approximation)

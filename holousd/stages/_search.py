@@ -40,7 +40,9 @@ that one choice and nothing else, so the objects of one depth of the support tre
 order none of which rests on another of the run) go to the workers together, each worker keeping its proposers
 (a learned prior's weights) loaded between tasks. E_pene against the neighbours placed so far, the choice and the
 revisit follow here in breadth-first order; an object whose parent a revisit changed after its evidence was
-gathered is proposed again on the parent's new shape. Any number of workers, or Ray, gives the same scene.
+gathered is proposed again on the parent's new shape. Any number of workers, or Ray, gives the same scene (a
+plug-in proposer that reads ``evidence.neighbours`` sees the shapes chosen before the object's depth of the tree,
+not those of its siblings chosen just before it).
 
 The chosen candidate's mesh and SDF replace the fitted ones in the layer (the physics set-up then sets every
 object on its support and derives its collider from that mesh). Every object records, in ``HoloEnergyAPI``, the

@@ -152,6 +152,29 @@ def _vec3f_array(values: np.ndarray) -> Vt.Vec3fArray:
     return Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(values, dtype=np.float32))
 
 
+def mesh_normals(points: np.ndarray, faces: np.ndarray, *, smooth: bool = True) -> np.ndarray:
+    """Unit normals of a triangle mesh: per vertex, the area-weighted mean of its faces' (``smooth``), or one per
+    face (a convex hull's flat faces); float32. A degenerate face or a vertex without area gets +z."""
+    points, faces = np.asarray(points, np.float64), np.asarray(faces, np.int64).reshape(-1, 3)
+    tri = points[faces]
+    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])  # |cross| = twice the area: area-weighted
+    if smooth:
+        summed = np.zeros_like(points)
+        for k in range(3):
+            np.add.at(summed, faces[:, k], cross)
+        cross = summed
+    length = np.linalg.norm(cross, axis=1, keepdims=True)
+    out = np.where(length > 1e-20, cross / np.maximum(length, 1e-20), np.array([0.0, 0.0, 1.0]))
+    return out.astype(np.float32)
+
+
+def set_normals(geom: UsdGeom.Mesh, points: np.ndarray, faces: np.ndarray, *, smooth: bool = True) -> None:
+    """Author ``normals`` on a triangle mesh (``vertex`` interpolation when ``smooth``, else ``uniform``: one per
+    face): a mesh with subdivision scheme ``none`` shows its facets without them, and validators require them."""
+    geom.CreateNormalsAttr().Set(Vt.Vec3fArray.FromNumpy(mesh_normals(points, faces, smooth=smooth)))
+    geom.SetNormalsInterpolation(UsdGeom.Tokens.vertex if smooth else UsdGeom.Tokens.uniform)
+
+
 def _relative_asset(target: Path, layer: Sdf.Layer) -> str:
     anchor = layer_path(layer)
     assert anchor is not None
@@ -523,11 +546,12 @@ class SceneGraph:
         )
 
     # ------------------------------------------------------------------ geometry
-    def _write_mesh(self, path: Sdf.Path, mesh: MeshData) -> UsdGeom.Mesh:
+    def _write_mesh(self, path: Sdf.Path, mesh: MeshData, *, smooth: bool = True) -> UsdGeom.Mesh:
         geom = UsdGeom.Mesh.Define(self._stage, path)
         geom.CreatePointsAttr().Set(_vec3f_array(mesh.points))
         geom.CreateFaceVertexCountsAttr().Set(Vt.IntArray.FromNumpy(np.full(len(mesh.faces), 3, dtype=np.int32)))
         geom.CreateFaceVertexIndicesAttr().Set(Vt.IntArray.FromNumpy(mesh.faces.astype(np.int32).ravel()))
+        set_normals(geom, mesh.points, mesh.faces, smooth=smooth)
         geom.CreateSubdivisionSchemeAttr().Set(UsdGeom.Tokens.none)
         geom.CreateOrientationAttr().Set(UsdGeom.Tokens.rightHanded)
         bounds = mesh.bounds.astype(np.float32)
@@ -911,7 +935,7 @@ class SceneGraph:
             if child.GetName() not in names:
                 child.SetActive(False)
         for part_name, part in zip(names, collider.parts, strict=True):
-            geom = self._write_mesh(scope_path.AppendChild(part_name), part)
+            geom = self._write_mesh(scope_path.AppendChild(part_name), part, smooth=False)  # a hull: flat faces
             geom.GetPrim().SetActive(True)
             geom.CreatePurposeAttr().Set(UsdGeom.Tokens.guide)
             UsdPhysics.CollisionAPI.Apply(geom.GetPrim()).CreateCollisionEnabledAttr().Set(True)
