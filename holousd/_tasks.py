@@ -27,7 +27,7 @@ from typing import Any
 
 from holousd._errors import HolousdError
 
-__all__ = ["TaskOutcome", "TaskPool", "overhead", "require_ray", "run_tasks"]
+__all__ = ["TaskOutcome", "TaskPool", "available_cores", "overhead", "require_ray", "run_tasks"]
 
 
 @dataclass(kw_only=True)
@@ -69,6 +69,12 @@ def _call(fn: Callable[..., Any], args: tuple) -> tuple[bool, Any, float, float,
     except Exception as exc:  # noqa: BLE001 - one failing task must not stop the others; reported, not hidden
         ok, value = False, f"internal error ({type(exc).__name__}: {_one_line(str(exc))})"
     return ok, value, time.perf_counter() - start, started, time.time()
+
+
+def _lost(what: str, exc: BaseException) -> tuple[bool, Any, float, float, float]:
+    """The result of a task whose worker never returned one (killed, out of memory), as :func:`_call` gives it."""
+    now = time.time()
+    return False, f"{what} ({type(exc).__name__}: {_one_line(str(exc))[:300]})", 0.0, now, now
 
 
 def require_ray() -> None:
@@ -132,7 +138,7 @@ class TaskPool:
     def __init__(self, *, workers: int | None = None, ray: str | None = None, num_cpus: float = 1.0,
                  memory_mb: float | None = None) -> None:  # fmt: skip
         self.ray = ray
-        self.workers = max(1, workers or _cores())
+        self.workers = max(1, workers or available_cores())
         self.num_cpus = num_cpus
         self.memory_mb = memory_mb
         self._pool: Any = None
@@ -176,15 +182,14 @@ class TaskPool:
 
                 self._pool = ProcessPoolExecutor(max_workers=self.workers,
                                                  mp_context=multiprocessing.get_context("spawn"))  # fmt: skip
-            with _child_threads(max(1, _cores() // self.workers)):  # workers spawn on submit, with this env
+            # the workers spawn on submit, with this environment
+            with _child_threads(max(1, available_cores() // self.workers)):
                 futures = {self._pool.submit(_call, fn, args): k for k, (_, args) in enumerate(tasks)}
             for future in as_completed(futures):
                 try:
                     result = future.result()
                 except Exception as exc:  # noqa: BLE001 - the worker died (killed, out of memory): that task fails
-                    now = time.time()
-                    result = (False, f"the worker process died ({type(exc).__name__}: {_one_line(str(exc))[:300]})",
-                              0.0, now, now)  # fmt: skip
+                    result = _lost("the worker process died", exc)
                 done(futures[future], result)
         return [outcomes[k] for k in range(len(tasks))]
 
@@ -192,7 +197,8 @@ class TaskPool:
 _THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
 
-def _cores() -> int:
+def available_cores() -> int:
+    """Cores this process may run on (its CPU affinity; all of the machine's where that is not known)."""
     try:
         return len(os.sched_getaffinity(0))
     except AttributeError:  # not Linux
@@ -230,7 +236,7 @@ def run_tasks(fn: Callable[..., Any], tasks: list[tuple[str, tuple]], *, workers
         memory_mb: Memory each Ray task declares, MiB (None: none declared).
         on_done: Called here with each outcome as it arrives (a progress bar).
     """
-    workers = max(1, min(workers or _cores(), len(tasks) or 1))
+    workers = max(1, min(workers or available_cores(), len(tasks) or 1))
     with TaskPool(workers=workers, ray=ray, num_cpus=num_cpus, memory_mb=memory_mb) as pool:
         return pool.run(fn, tasks, on_done)
 
@@ -256,9 +262,7 @@ def _run_ray(fn: Callable[..., Any], tasks: list[tuple[str, tuple]], address: st
             try:
                 result = ray.get(ref)
             except Exception as exc:  # noqa: BLE001 - the worker died (killed, out of memory): that task fails
-                now = time.time()
-                result = (False, f"the Ray task failed ({type(exc).__name__}: {_one_line(str(exc))[:300]})", 0.0,
-                          now, now)  # fmt: skip
+                result = _lost("the Ray task failed", exc)
             outcomes[k] = _outcome(tasks[k][0], result, submitted)
             if on_done is not None:
                 on_done(outcomes[k])

@@ -143,7 +143,7 @@ def _worker_state(_: int) -> tuple[int, str | None]:
 
 
 def test_a_task_pool_keeps_its_workers_and_gives_each_its_share_of_the_cores(monkeypatch: pytest.MonkeyPatch) -> None:
-    from holousd._tasks import TaskPool, _cores
+    from holousd._tasks import TaskPool, available_cores
 
     monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
     with TaskPool(workers=2) as pool:
@@ -151,7 +151,7 @@ def test_a_task_pool_keeps_its_workers_and_gives_each_its_share_of_the_cores(mon
         again = pool.run(_worker_state, [(str(k), (k,)) for k in range(4)])
     pids = {o.value[0] for o in first}
     assert len(pids) == 2 and {o.value[0] for o in again} <= pids  # the same warm processes, no new spawn
-    assert {o.value[1] for o in first} == {str(max(1, _cores() // 2))}  # BLAS threads: the worker's share
+    assert {o.value[1] for o in first} == {str(max(1, available_cores() // 2))}  # BLAS threads: the worker's share
     assert "OMP_NUM_THREADS" not in __import__("os").environ  # this process's environment as it was
 
 

@@ -158,11 +158,10 @@ def machine_info() -> dict[str, Any]:
         memory_gb = round(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30, 1)
     except (ValueError, OSError, AttributeError):
         pass
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except AttributeError:
-        cores = os.cpu_count()
     from holousd import __version__
+    from holousd._tasks import available_cores
+
+    cores = available_cores()
 
     torch_threads = None
     if "torch" in sys.modules:

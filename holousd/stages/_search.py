@@ -281,6 +281,9 @@ def search(scene: SceneGraph, obs, config: SearchConfig | None = None,  # noqa: 
         scene.save()
         return SearchResult(scene=scene, mode=config.mode, choices=choices, wall_s=time.perf_counter() - start)
     scorer = _Scorer(config, _floor(scene))
+    known = dict(fitted)  # world meshes as fitted, the room's with them: read from the scene once, not per object
+    if _has_mesh(scene, BACKGROUND):
+        known[BACKGROUND] = _world(scene.get_pose(BACKGROUND), scene.get_mesh(BACKGROUND))
     placed: dict[str, MeshData] = {}  # world meshes of the chosen shapes
     candidates: dict[str, list] = {}  # name -> [(Candidate, world mesh)]
     by_name: dict[str, ObjectChoice] = {}
@@ -312,7 +315,7 @@ def search(scene: SceneGraph, obs, config: SearchConfig | None = None,  # noqa: 
                                          config.max_seen_through, scorer, ground)  # fmt: skip
                 near = {}
                 if not ground:  # E_pene: the parent and the neighbours placed so far, this wave's included
-                    around = object_neighbours(scene, name, support=parent, placed={**fitted, **placed})
+                    around = object_neighbours(scene, name, support=parent, placed={**known, **placed})
                     near = {k: v for k, v in around.items() if k in placed or k == parent}
                 found, scores = [], []
                 for cand, e_obs, rejected, standing in proposed:
@@ -405,9 +408,9 @@ def _waves(order: list[str], relations) -> list[list[str]]:  # noqa: ANN001
 
 
 def _workers(config: SearchConfig) -> int:
-    from holousd._tasks import _cores
+    from holousd._tasks import available_cores
 
-    return max(1, config.workers) if config.workers is not None else _cores()
+    return max(1, config.workers) if config.workers is not None else available_cores()
 
 
 def _has_mesh(scene: SceneGraph, name: str) -> bool:
