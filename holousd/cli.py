@@ -29,6 +29,7 @@ _COMMAND_MODULES = (
     "holousd.stages._cli",
     "holousd.stages._pipeline_cli",
     "holousd.batch._cli",
+    "holousd.view._cli",
 )
 """Modules that contribute sub-commands, in the order ``--help`` lists them."""
 _NO_WARP_COMMANDS = frozenset({"info", "validate", "export", "example"})

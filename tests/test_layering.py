@@ -22,6 +22,7 @@ FORBIDDEN = {
     "graph": ("stages", "cli", "physics", "render", "synth", "io", "eval", "batch"),
     "eval": ("cli",),  # the benchmark harness composes stages (and runs them on batch's engine)
     "batch": ("cli",),
+    "view": ("cli", "eval", "batch"),  # the viewer sits above the stages, beside eval and batch
     "priors": ("stages", "cli", "eval", "batch"),  # proposers and E_obs: the search stage composes them
 }
 
