@@ -76,8 +76,22 @@ def test_textured_quad_is_reproduced_on_a_held_out_view(tmp_path: Path) -> None:
     material, _ = UsdShade.MaterialBindingAPI(geom).ComputeBoundMaterial()
     shader = material.ComputeSurfaceSource()[0]
     assert shader.GetIdAttr().Get() == "UsdPreviewSurface"
-    reader = shader.GetInput("diffuseColor").GetConnectedSources()[0][0].source
-    assert UsdShade.Shader(reader.GetPrim()).GetInput("varname").Get() == "displayColor"
+    texture = UsdShade.Shader(shader.GetInput("diffuseColor").GetConnectedSources()[0][0].source.GetPrim())
+    assert texture.GetIdAttr().Get() == "UsdUVTexture"  # the baked texture; displayColor stays as the fallback
+    # The texture carries the pattern the four per-point colours cannot: sampled anywhere on the card it gives the
+    # captured colour, far closer than the per-point colours interpolated across the faces.
+    from holousd.render._bake import sample_texture
+
+    st, texels = reopened.get_surface_texture("card")
+    rng = np.random.default_rng(1)
+    faces = rng.integers(0, len(mesh.faces), 400)
+    bary = rng.dirichlet(np.ones(3), 400)
+    points = np.einsum("nk,nkc->nc", bary, mesh.points[mesh.faces[faces]])
+    truth = _texture(None, points, None)
+    textured = sample_texture(texels, np.einsum("nk,nkc->nc", bary, st[faces]))
+    per_point = np.einsum("nk,nkc->nc", bary, _texture(None, mesh.points, None)[mesh.faces[faces]])
+    assert np.abs(textured - truth).mean() < 0.5 * np.abs(per_point - truth).mean()
+    assert np.abs(textured - truth).mean() < 0.05
     from holousd.usd._validate import _usd_validators
 
     shading = [i for i in _usd_validators(reopened.stage) if "/World/Looks" in i.where]

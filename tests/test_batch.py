@@ -19,7 +19,7 @@ from holousd.io import load
 from holousd.stages import _search
 from holousd.stages._pipeline import preset
 from holousd.synth import SynthConfig, generate_suite
-from holousd.usd import SceneGraph
+from holousd.usd import SceneGraph, data_layer_path
 
 
 def _tiny():  # noqa: ANN202 - PipelineConfig
@@ -47,7 +47,8 @@ def _layer(path: Path) -> str:
     holo.pop("stage", None)  # wall time, memory and run id differ from run to run
     data["holousd"] = holo
     layer.customLayerData = data
-    return layer.ExportToString()
+    crate = data_layer_path(path)  # and the large arrays, kept in the layer's crate file
+    return layer.ExportToString() + (Sdf.Layer.OpenAsAnonymous(str(crate)).ExportToString() if crate.is_file() else "")
 
 
 def _check_rows(rows: list[dict], out: Path, run: list[str]) -> None:

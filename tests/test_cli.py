@@ -107,11 +107,12 @@ def test_export_usdz_packages_assets(example_copy: Path, tmp_path: Path) -> None
     out = tmp_path / "scene.usdz"
     assert main(["export", str(example_copy), "--usdz", str(out)]) == 0
     names = zipfile.ZipFile(out).namelist()
-    assert names[0] == "scene.usda"
-    assert "assets/scene/mug.splats.usdc" in names and "assets/scene/mug.sdf.npz" in names
+    assert names == ["scene.usdc"]  # one crate file: the splats inline, no .npz (a package holds no such file)
     from holousd import SceneGraph
 
-    assert len(SceneGraph.open(out).get_gaussians("mug")) == 2000
+    packed = SceneGraph.open(out)
+    assert len(packed.get_gaussians("mug")) == 2000 and packed.get_support("mug") == "book"
+    assert main(["validate", str(out)]) == 0
 
 
 def test_example_command(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:

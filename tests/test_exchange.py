@@ -122,3 +122,48 @@ def test_export_glb_has_world_meshes_turned_y_up_with_their_colours(example_copy
     assert np.all(mug.visual.vertex_colors[:, :3] == 128)  # no colour baked: grey
     whole = trimesh.load(out / "scene.glb", process=False)
     assert sorted(whole.geometry) == sorted(meshes)
+
+
+def test_texture_baked_from_the_splats_is_bound_through_a_preview_surface(example_copy: Path) -> None:
+    from pxr import UsdShade
+
+    from holousd import InvalidDataError, SceneError
+    from holousd.render._bake import bake_texture, sample_texture, surface_srgb, vertex_colors
+
+    scene = SceneGraph.open(example_copy)
+    mesh, splats = scene.get_mesh("table"), scene.get_gaussians("table")
+    texture = bake_texture(mesh, splats)
+    assert texture.st.shape == (len(mesh.faces), 3, 2) and texture.image.dtype == np.uint8
+    assert texture.st.min() >= 0.0 and texture.st.max() <= 1.0 and max(texture.image.shape[:2]) <= 1024
+    rng = np.random.default_rng(0)  # random points on random faces: the texture gives the splats' colour there
+    faces = rng.integers(0, len(mesh.faces), 500)
+    bary = rng.dirichlet(np.ones(3), 500)
+    points = np.einsum("nk,nkc->nc", bary, mesh.points[mesh.faces[faces]])
+    st = np.einsum("nk,nkc->nc", bary, texture.st[faces])
+    direct = surface_srgb(points, mesh, splats)
+    assert np.abs(sample_texture(texture.image, st) - direct).mean() < 6.0 / 255.0
+    # and it is more faithful than the per-point colours interpolated across each face
+    corner = vertex_colors(mesh, splats)
+    linear = np.einsum("nk,nkc->nc", bary, corner[mesh.faces[faces]])
+    per_point = np.where(linear <= 0.0031308, 12.92 * linear, 1.055 * linear ** (1 / 2.4) - 0.055)
+    assert np.abs(sample_texture(texture.image, st) - direct).mean() < np.abs(per_point - direct).mean()
+
+    with pytest.raises(SceneError, match="set_surface_color"):
+        scene.set_surface_texture("table", texture.st, texture.image)
+    with scene.edit(example_copy.parent / "edit_texture.usda"):
+        scene.set_surface_color("table", corner)
+        with pytest.raises(InvalidDataError, match="one per triangle corner"):
+            scene.set_surface_texture("table", texture.st[:-1], texture.image)
+        image_file = scene.set_surface_texture("table", texture.st, texture.image)
+    assert image_file == example_copy.parent / "assets" / "edit_texture" / "table.png" and image_file.is_file()
+    reread = SceneGraph.open(example_copy.parent / "edit_texture.usda")
+    st_back, image_back = reread.get_surface_texture("table")
+    np.testing.assert_allclose(st_back, texture.st, atol=1e-6)
+    assert np.array_equal(image_back, texture.image)
+    np.testing.assert_allclose(reread.get_surface_color("table"), np.clip(corner, 0, 1), atol=1e-6)
+    geom = reread.stage.GetPrimAtPath("/World/Objects/table/Geom")
+    material = UsdShade.MaterialBindingAPI(geom).ComputeBoundMaterial()[0]
+    surface = UsdShade.Shader(reread.stage.GetPrimAtPath(material.GetPath().AppendChild("Surface")))
+    source = surface.GetInput("diffuseColor").GetConnectedSources()[0][0].source
+    assert UsdShade.Shader(source.GetPrim()).GetIdAttr().Get() == "UsdUVTexture"
+    assert reread.get_surface_texture("mug") is None

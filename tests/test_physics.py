@@ -334,7 +334,8 @@ def test_trajectory_layer_round_trips(tmp_path) -> None:
     traj = physics.simulate(stage, physics.SimulationConfig(seconds=0.5), impulses={B: (0.2, 0.0, 0.0)})
     out = tmp_path / "anim" / "motion.usda"
     physics.write_trajectory_layer(traj, scene, out, fps=60)
-    assert sorted(p.name for p in out.parent.iterdir()) == ["motion.usda"]  # no temp files left
+    written = sorted(str(p.relative_to(out.parent)) for p in out.parent.rglob("*") if p.is_file())
+    assert written == ["assets/motion/arrays.usdc", "motion.usda"]  # the samples in crate form; no temp files left
     anim = Usd.Stage.Open(str(out))
     assert anim.GetTimeCodesPerSecond() == 60 and anim.GetEndTimeCode() == 30
     assert UsdGeom.GetStageUpAxis(anim) == UsdGeom.Tokens.z and UsdGeom.GetStageMetersPerUnit(anim) == 1.0

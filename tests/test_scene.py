@@ -318,6 +318,48 @@ def test_flatten_is_self_contained(example_copy: Path, tmp_path: Path) -> None:
     assert scene.get_support("mug") == "book"
 
 
+def test_large_arrays_and_long_time_samples_go_to_a_crate_file_under_the_text_layer(tmp_path: Path) -> None:
+    from holousd.usd import data_layer_path
+
+    scene = SceneGraph.create(tmp_path / "scene.usda")
+    scene.add_object("cup", instance_id=1)
+    big = MeshData(points=np.random.default_rng(0).normal(size=(100, 3)), faces=np.tile([0, 1, 2], (40, 1)))
+    scene.set_mesh("cup", big)
+    prim = scene.stage.GetPrimAtPath("/World/Objects/cup")
+    prim.CreateAttribute("holo:test:few", Sdf.ValueTypeNames.FloatArray).Set([1.0, 2.0])
+    spin = prim.CreateAttribute("holo:test:spin", Sdf.ValueTypeNames.Float)
+    for t in range(6):
+        spin.Set(float(t), Usd.TimeCode(t))
+    path = scene.save()
+    data = data_layer_path(path)
+    assert data == tmp_path / "assets" / "scene" / "arrays.usdc" and data.is_file()
+    text = Sdf.Layer.OpenAsAnonymous(str(path))
+    assert list(text.subLayerPaths) == ["./assets/scene/arrays.usdc"]
+    assert text.GetAttributeAtPath("/World/Objects/cup/Geom.points") is None  # 100 points: in the crate file
+    assert text.GetAttributeAtPath("/World/Objects/cup/Geom.faceVertexIndices") is None  # 120 indices
+    assert len(text.GetAttributeAtPath("/World/Objects/cup/Geom.faceVertexCounts").default) == 40  # not > 64
+    assert text.GetAttributeAtPath("/World/Objects/cup.holo:test:spin") is None  # 6 time samples
+    assert list(text.GetAttributeAtPath("/World/Objects/cup.holo:test:few").default) == [1.0, 2.0]
+
+    reread = SceneGraph.open(path)  # a fresh read composes the same scene
+    np.testing.assert_allclose(reread.get_mesh("cup").points, big.points, atol=1e-6)
+    assert reread.stage.GetPrimAtPath("/World/Objects/cup").GetAttribute("holo:test:spin").Get(5) == 5.0
+    # Saving again a layer read back from disk folds its crate file in and splits it again; new values win.
+    disk = Sdf.Layer.OpenAsAnonymous(str(path))  # the text layer as a fresh process reads it
+    points = Sdf.AttributeSpec(disk.GetPrimAtPath("/World/Objects/cup/Geom"), "points", Sdf.ValueTypeNames.Point3fArray)
+    points.default = [(0.0, 0.0, 0.0)] * 100
+    holousd.usd.save_layer(disk, path)
+    fresh = Sdf.Layer.OpenAsAnonymous(str(data))
+    assert np.abs(np.asarray(fresh.GetAttributeAtPath("/World/Objects/cup/Geom.points").default)).max() == 0.0
+    assert fresh.GetAttributeAtPath("/World/Objects/cup.holo:test:spin") is not None
+    # A layer with nothing large keeps no crate file; a flattened copy is one self-contained file.
+    small = SceneGraph.create(tmp_path / "small.usda")
+    small.add_object("cup", instance_id=1)
+    assert not data_layer_path(small.save()).exists()
+    flat = scene.flatten(tmp_path / "flat.usda")
+    assert not Sdf.Layer.OpenAsAnonymous(str(flat)).subLayerPaths and not data_layer_path(flat).exists()
+
+
 def test_set_collider_deactivates_stale_parts(tmp_path: Path) -> None:
     scene = SceneGraph.create(tmp_path / "a.usda")
     scene.add_object("t", instance_id=1)

@@ -119,8 +119,11 @@ def test_page_serves_the_scene_and_a_client_moves_saves_and_pushes(example_copy:
         client.click("Push selected")
         client.receive(lambda ms: any("push of box" in s for s in client.status()), timeout=600)
         moves = [np.array(m["position"]) for m in client.of_type("SetPositionMessage") if m["name"] == "/nodes/box"]
-        assert len(moves) > 5  # streamed while it was computed
         path = session.motion.poses["box"]
+        # streamed while it was computed: the page saw more than one simulated state of the box (the server merges
+        # updates it has not sent yet, so how many depends on the machine's load)
+        simulated = {tuple(np.round(m, 6)) for m in moves if np.linalg.norm(m - target) > 1e-4}
+        assert len(simulated) >= 2, moves
         shift = path[-1].translation - path[0].translation
         assert shift[0] < -0.03 and abs(shift[1]) < 0.3 * abs(shift[0])  # along the camera's view, -x
         assert np.linalg.norm(path[-1].translation - path[-13].translation) < 0.005  # and it came to rest

@@ -7,7 +7,9 @@ against its complete ground-truth surface (so the unseen backs count: this is wh
 Render: the reconstructed splats rendered at the capture's held-out cameras (frames the pipeline's appearance
 stage did not fit; all frames when none is held out) against the captured images; null when there are no splats.
 ``mesh_psnr``: the same frames ray-cast from the meshes in the colour baked onto them (what tools that read no
-splats show, unlit), on every other held-out frame; null when no mesh carries baked colour.
+splats show, unlit: the texture where a mesh has one), on every other held-out frame; ``vertex_psnr``: the same
+with the per-point colour alone (the fallback of tools that read no textures); null when no mesh carries baked
+colour.
 Physics: OR% (ground-truth objects with a reconstructed mesh), Stable% (stable reconstructed objects matched to a
 ground-truth object / ground-truth objects, :func:`holousd.physics.stability` on the whole reconstructed scene)
 and the summed pairwise intersection volume of the objects' meshes (cm^3).
@@ -176,10 +178,10 @@ def _render_metrics(scene: Any, gt_dir: Path, config: EvalConfig, notes: list[st
         renderer = SceneRenderer(scene, background=(0.0, 0.0, 0.0))
     except HolousdError as exc:
         notes.append(f"render: no splats to render ({exc})")
-        return {"psnr": None, "ssim": None, "mesh_psnr": None}
+        return {"psnr": None, "ssim": None, "mesh_psnr": None, "vertex_psnr": None}
     if renderer.splat_count == 0:
         notes.append("render: the scene has no Gaussian splats (appearance stage not run); PSNR/SSIM are null")
-        return {"psnr": None, "ssim": None, "mesh_psnr": None}
+        return {"psnr": None, "ssim": None, "mesh_psnr": None, "vertex_psnr": None}
     obs = load(gt_dir)
     frames = holdout_frames(len(obs)) or list(range(len(obs)))
     frames = [frames[i] for i in evenly_spaced(len(frames), config.render_frames)]
@@ -192,22 +194,23 @@ def _render_metrics(scene: Any, gt_dir: Path, config: EvalConfig, notes: list[st
         s.append(ssim(image, ref))
     notes.append(f"render: {len(frames)} held-out frames {frames}")
     out: dict[str, float | None] = {"psnr": float(np.mean(p)), "ssim": float(np.mean(s))}
-    out["mesh_psnr"] = _mesh_psnr(scene, obs, frames, notes)
+    out["mesh_psnr"], out["vertex_psnr"] = _mesh_psnr(scene, obs, frames, notes)
     return out
 
 
-def _mesh_psnr(scene: Any, obs: Any, frames: list[int], notes: list[str]) -> float | None:
-    """Held-out PSNR of the meshes coloured as other tools show them (the baked ``primvars:displayColor``,
-    interpolated across each triangle, sRGB-encoded; one ray per pixel centre, no lighting), on every other
-    held-out frame; None when no mesh is coloured."""
+def _mesh_psnr(scene: Any, obs: Any, frames: list[int], notes: list[str]) -> tuple[float | None, float | None]:
+    """Held-out PSNR of the meshes coloured as other tools show them: (with each mesh's baked texture where it has
+    one, else its per-point colour; with the per-point colour ``primvars:displayColor`` alone), one ray per pixel
+    centre, no lighting, sRGB-encoded, on every other held-out frame; None when no mesh is coloured."""
     import trimesh
 
     from holousd.eval._image import psnr
     from holousd.render import Camera
+    from holousd.render._bake import sample_texture
     from holousd.render._raycast import raycast
     from holousd.usd import MeshData
 
-    meshes, colours = [], []
+    meshes, colours, textures = [], [], []
     for node in scene.nodes():
         colour = scene.get_surface_color(node.name)
         if colour is None:
@@ -216,22 +219,34 @@ def _mesh_psnr(scene: Any, obs: Any, frames: list[int], notes: list[str]) -> flo
         meshes.append(MeshData(points=scene.get_pose(node.name).apply(mesh.points), faces=mesh.faces))
         colour = np.clip(colour, 0.0, 1.0)
         colours.append(np.where(colour <= 0.0031308, 12.92 * colour, 1.055 * colour ** (1 / 2.4) - 0.055))
+        textures.append(scene.get_surface_texture(node.name))
     if not meshes:
         notes.append("render: no mesh carries baked colour (primvars:displayColor); mesh PSNR is null")
-        return None
-    values = []
+        return None, None
+    if not any(t is not None for t in textures):
+        notes.append("render: no mesh carries a baked texture; mesh PSNR is that of the per-point colours")
+    shown, per_point = [], []
     for i in frames[::2]:
         cam = Camera.from_intrinsics(obs.intrinsics[i], obs.poses[i], obs.width, obs.height)
         hits = raycast(meshes, cam, chunk=1 << 21)  # bounded memory: at most 2M ray-triangle pairs at once
         image = np.zeros((len(hits.mesh), 3))
+        textured = np.zeros((len(hits.mesh), 3))
         for k in np.unique(hits.mesh[hits.mesh >= 0]):
             hit = np.flatnonzero(hits.mesh == k)
-            faces = np.asarray(meshes[k].faces)[hits.face[hit]]
+            face_index = hits.face[hit]
+            faces = np.asarray(meshes[k].faces)[face_index]
             weights = trimesh.triangles.points_to_barycentric(np.asarray(meshes[k].points)[faces], hits.points[hit])
-            image[hit] = np.einsum("rv,rvc->rc", np.clip(weights, 0, 1), colours[k][faces])
+            weights = np.clip(weights, 0, 1)
+            image[hit] = np.einsum("rv,rvc->rc", weights, colours[k][faces])
+            if textures[k] is None:
+                textured[hit] = image[hit]
+            else:
+                st, texels = textures[k]
+                textured[hit] = sample_texture(texels, np.einsum("rv,rvc->rc", weights, st[face_index]))
         reference = np.asarray(obs.rgb(i))[..., :3].astype(np.float32) / 255.0
-        values.append(psnr(image.reshape(reference.shape).astype(np.float32), reference))
-    return float(np.mean(values))
+        per_point.append(psnr(image.reshape(reference.shape).astype(np.float32), reference))
+        shown.append(psnr(textured.reshape(reference.shape).astype(np.float32), reference))
+    return float(np.mean(shown)), float(np.mean(per_point))
 
 
 def _penetration_cm3(world: dict[str, tuple[np.ndarray, np.ndarray]], notes: list[str]) -> float:

@@ -183,7 +183,8 @@ def write_trajectory_layer(
     (parent transforms taken from the scene) and an ``xformOpOrder`` of translate, orient (then scale when the
     prim has a scale op). ``timeCodesPerSecond = framesPerSecond = fps``; time code k is t = k / fps. Stage
     metadata (upAxis, metersPerUnit, ...) is copied from the scene. The file is written atomically (temp file
-    in the same folder, then ``os.replace``).
+    in the same folder, then ``os.replace``); a ``.usda`` layer keeps the time samples in its crate data file
+    (``assets/<stem>/arrays.usdc``, see :func:`holousd.usd.save_layer`).
 
     Args:
         traj: Trajectories from :func:`simulate`.
@@ -244,14 +245,6 @@ def write_trajectory_layer(
         order = ["xformOp:translate", "xformOp:orient"] + (["xformOp:scale"] if "xformOp:scale" in existing else [])
         o_spec = Sdf.AttributeSpec(spec, "xformOpOrder", Sdf.ValueTypeNames.TokenArray, Sdf.VariabilityUniform)
         o_spec.default = Vt.TokenArray(order)
-    return _export_atomic(layer, out_path)
+    from holousd.usd import save_layer
 
-
-def _export_atomic(layer: Sdf.Layer, out_path: str) -> str:
-    """Export ``layer`` to ``out_path`` through a temp file in the same folder and ``os.replace``."""
-    from holousd._atomic import atomic_path
-
-    with atomic_path(out_path) as tmp:
-        if not layer.Export(str(tmp)):
-            raise PhysicsInputError(f"{out_path}: USD could not write the layer; check the folder is writable")
-    return out_path
+    return str(save_layer(layer, out_path))

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from holousd._errors import InvalidDataError, SceneError
-from holousd.render._bake import vertex_colors
+from holousd.render._bake import bake_texture, vertex_colors
 from holousd.render._binding import SH_C0, SplatBudget, initial_bound_splats, splat_budget, splats_in_world
 from holousd.render._fit import FitConfig, FitNode, FitResult, colors_from_frames, fit_bound_splats
 from holousd.render._frames import as_frames
@@ -43,6 +43,11 @@ class AppearanceConfig:
     """Writer name recorded on the nodes."""
     seed: int = 0
     """Seed of the splat sampling."""
+    texture: bool = True
+    """Also bake the splats' colour into a texture atlas per mesh (``<node>.png`` beside the layer), which tools
+    that read no splats show instead of the per-point colour (which stays as their fallback)."""
+    texture_max_size: int = 1024
+    """Longest side of a node's texture, texels (its texels are half the splats' spacing, larger on big meshes)."""
 
 
 @dataclass(kw_only=True)
@@ -124,6 +129,9 @@ def fit_appearance(scene: SceneGraph, frames: object, config: AppearanceConfig |
         scene.set_gaussians(name, splats)
         if name in meshes and len(meshes[name].points):  # colour on the mesh for tools that read no splats
             scene.set_surface_color(name, vertex_colors(meshes[name], splats))
+            if config.texture:
+                texture = bake_texture(meshes[name], splats, max_size=config.texture_max_size)
+                scene.set_surface_texture(name, texture.st, texture.image)
     written = scene.save()
     return AppearanceResult(scene=scene, layer=written, fit=result,
                             counts={k: len(v) for k, v in result.splats.items()}, budgets=budgets)  # fmt: skip

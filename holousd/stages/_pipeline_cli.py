@@ -149,7 +149,7 @@ def format_evaluation(d: dict) -> str:
         f"geometry objects: Chamfer {f(g['objects']['chamfer_cm'])} cm  F1 {f(g['objects']['f1'], '.1f')}  "
         f"NC {f(g['objects']['nc'], '.1f')}",
         f"render:           PSNR {f(r['psnr'])} dB  SSIM {f(r['ssim'], '.3f')}"
-        f"  (meshes in their baked colours: PSNR {f(r.get('mesh_psnr'))} dB)",
+        f"  (meshes: PSNR {f(r.get('mesh_psnr'))} dB textured, {f(r.get('vertex_psnr'))} dB in per-point colour)",
         f"physics:          OR {f(p['or_pct'], '.1f')}%  Stable {f(p['stable_pct'], '.1f')}%  "
         f"penetration {f(p['penetration_cm3'])} cm^3"
         + (

@@ -1,7 +1,7 @@
 """USD domain: schema plugin, the SceneGraph facade, layers, validation and export."""
 
 from holousd.usd._export import export_sim, export_usdz
-from holousd.usd._layers import new_layer_over, save_layer
+from holousd.usd._layers import data_layer_path, new_layer_over, save_layer
 from holousd.usd._plugin import API_SCHEMAS, SCHEMA_VERSION, plugin_resources_dir, register
 from holousd.usd._scene import (
     BACKGROUND,
@@ -50,5 +50,6 @@ __all__ = [
     "read_mesh",
     "register",
     "save_layer",
+    "data_layer_path",
     "validate",
 ]

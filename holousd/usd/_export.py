@@ -32,13 +32,20 @@ def export_sim(stage: Usd.Stage, out: str | os.PathLike[str]) -> Path:
     Returns:
         The path written.
     """
-    flat = stage.Flatten()
-    sim = Usd.Stage.Open(flat)
+    flat, sim = _flattened(stage, "sim")
     dropped = [p.GetPath() for p in sim.Traverse() if p.IsA(UsdVol.ParticleField) or p.IsA(UsdGeom.Camera)]
     dropped += [Sdf.Path(p) for p in _DROPPED_SCOPES if sim.GetPrimAtPath(p)]
     for path in sorted(set(dropped), key=lambda p: p.pathElementCount, reverse=True):
         sim.RemovePrim(path)
-    for prim in sim.Traverse():
+    return save_layer(flat, out, split=False)
+
+
+def _flattened(stage: Usd.Stage, kind: str) -> tuple[Sdf.Layer, Usd.Stage]:
+    """The composed scene in one layer (and a stage on it to edit it) without HoloSdfAPI and its properties (the
+    grids live in .npz files beside the layers), stamped with where it came from and the kind of export."""
+    flat = stage.Flatten()
+    opened = Usd.Stage.Open(flat)
+    for prim in opened.Traverse():
         if "HoloSdfAPI" in prim.GetAppliedSchemas():
             prim.RemoveAPI("HoloSdfAPI")
             for prop in prim.GetPropertiesInNamespace("holo:sdf"):
@@ -46,14 +53,19 @@ def export_sim(stage: Usd.Stage, out: str | os.PathLike[str]) -> Path:
     data = dict(flat.customLayerData)
     holo = dict(data.get("holousd", {}))
     holo["exportedFrom"] = stage.GetRootLayer().identifier
-    holo["exportKind"] = "sim"
+    holo["exportKind"] = kind
     data["holousd"] = holo
     flat.customLayerData = data
-    return save_layer(flat, out)
+    return flat, opened
 
 
 def export_usdz(stage: Usd.Stage, out: str | os.PathLike[str]) -> Path:
-    """Package the full scene (all layers, per-object splat files, SDF grids) into one .usdz archive.
+    """Package the scene as one self-contained .usdz archive: the composed scene flattened into one crate file
+    (meshes, colliders, physics, relations, cameras, and the Gaussian splats inline).
+
+    Left out, because a package may hold only USD, image and audio files: the SDF grids (.npz files, the fit's
+    working state; the scene folder keeps them) and the cameras' links to the captured images (capture data,
+    often thousands of frames).
 
     Args:
         stage: The scene; its root layer must be saved to a file.
@@ -62,6 +74,8 @@ def export_usdz(stage: Usd.Stage, out: str | os.PathLike[str]) -> Path:
     Returns:
         The path written.
     """
+    import tempfile
+
     out = Path(out)
     if out.suffix != ".usdz":
         raise SceneError(f"{out}: a USDZ package must end in .usdz")
@@ -70,9 +84,18 @@ def export_usdz(stage: Usd.Stage, out: str | os.PathLike[str]) -> Path:
         raise SceneError("the scene is in memory: save it to a file before packaging it as USDZ")
     if stage.GetRootLayer().dirty:
         raise SceneError(f"{root}: has unsaved changes; save the scene before packaging it")
-    with atomic_path(out) as tmp:
-        if not UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(str(root)), str(tmp)):
-            raise SceneError(f"{out}: USD could not package {root}; run 'holousd validate' on it first")
+    flat, packed = _flattened(stage, "usdz")
+    for prim in packed.Traverse():
+        if prim.HasAttribute("holo:camera:image"):
+            prim.RemoveProperty("holo:camera:image")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix=".holousd-usdz-", dir=out.parent) as folder:
+        inner = Path(folder) / f"{root.stem}.usdc"
+        if not flat.Export(str(inner)):
+            raise SceneError(f"{out}: USD could not write the flattened scene; check disk space")
+        with atomic_path(out) as tmp:
+            if not UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(str(inner)), str(tmp)):
+                raise SceneError(f"{out}: USD could not package {root}; run 'holousd validate' on it first")
     return out
 
 

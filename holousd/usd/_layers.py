@@ -15,7 +15,13 @@ from pxr import Sdf, Tf, UsdUtils
 from holousd._atomic import atomic_path
 from holousd._errors import SceneError
 
-__all__ = ["layer_path", "new_layer_over", "open_layer_stack", "save_layer", "usd_error_text"]
+__all__ = ["data_layer_path", "layer_path", "new_layer_over", "open_layer_stack", "save_layer", "usd_error_text"]
+
+ARRAY_LIMIT = 64
+"""Array values longer than this are stored in the layer's crate data file, not in its text (the bound of
+NVIDIA's UsdAsciiPerformanceChecker: text layers with longer arrays are slow to read)."""
+SAMPLE_LIMIT = 4
+"""Attributes with more time samples than this are stored in the crate data file too (the same checker's bound)."""
 
 _TF_ENTRY = re.compile(r"Error in '[^']*' at line \d+ in file [^:]*: '(.*)'\s*$")
 _PXR_NAMESPACE = re.compile(r"pxrInternal_v\w+?__pxrReserved__::")
@@ -90,8 +96,76 @@ def new_layer_over(base: Sdf.Layer, path: str | os.PathLike[str]) -> Sdf.Layer:
     return layer
 
 
-def save_layer(layer: Sdf.Layer, path: str | os.PathLike[str] | None = None) -> Path:
+def data_layer_path(layer_file: str | os.PathLike[str]) -> Path:
+    """The crate file holding the large arrays of the text layer ``layer_file``: ``assets/<stem>/arrays.usdc``
+    beside it, sublayered first (just under the text layer, over everything below it)."""
+    layer_file = Path(layer_file)
+    return layer_file.parent / "assets" / layer_file.stem / "arrays.usdc"
+
+
+def _attribute_paths(layer: Sdf.Layer) -> list[Sdf.Path]:
+    paths: list[Sdf.Path] = []
+
+    def visit(path: Sdf.Path) -> None:
+        if path.IsPropertyPath() and layer.GetAttributeAtPath(path):
+            paths.append(path)
+
+    layer.Traverse(Sdf.Path.absoluteRootPath, visit)
+    return paths
+
+
+def _heavy(layer: Sdf.Layer, spec: Sdf.AttributeSpec) -> bool:
+    if layer.GetNumTimeSamplesForPath(spec.path) > SAMPLE_LIMIT:
+        return True
+    if not spec.typeName.isArray:
+        return False
+    values = [spec.default] if spec.HasDefaultValue() else []
+    values += [layer.QueryTimeSample(spec.path, t) for t in layer.ListTimeSamplesForPath(spec.path)]
+    return any(v is not None and not isinstance(v, Sdf.ValueBlock) and len(v) > ARRAY_LIMIT for v in values)
+
+
+def _split(layer: Sdf.Layer, target: Path) -> tuple[Sdf.Layer, Sdf.Layer | None]:
+    """A copy of ``layer`` as (text layer, crate layer with its large arrays and long time samples, or None).
+
+    A layer read back from disk already sublayers its data file: those attributes are folded back in first (where
+    the text layer still has their prim and no newer value), so that the split is always of the whole layer.
+    """
+    data_file = data_layer_path(target)
+    text = Sdf.Layer.CreateAnonymous(".usda")
+    text.TransferContent(layer)
+    ours = [sub for sub in text.subLayerPaths if Path(os.path.normpath(target.parent / sub)) == data_file]
+    if ours:
+        old = Sdf.Layer.FindOrOpen(str(data_file)) if data_file.is_file() else None
+        for path in _attribute_paths(old) if old is not None else []:
+            if text.GetPrimAtPath(path.GetPrimPath()) and not text.GetAttributeAtPath(path):
+                Sdf.CopySpec(old, path, text, path)
+        for sub in ours:
+            text.subLayerPaths.remove(sub)
+    data = Sdf.Layer.CreateAnonymous(".usdc")
+    # Time codes per second must match, or USD rescales the crate file's time samples to the text layer's rate.
+    if text.HasTimeCodesPerSecond():
+        data.timeCodesPerSecond = text.timeCodesPerSecond
+    if text.HasFramesPerSecond():
+        data.framesPerSecond = text.framesPerSecond
+    for path in _attribute_paths(text):
+        spec = text.GetAttributeAtPath(path)
+        if not _heavy(text, spec):
+            continue
+        Sdf.CreatePrimInLayer(data, path.GetPrimPath())  # an over, as are its ancestors
+        Sdf.CopySpec(text, path, data, path)
+        text.GetPrimAtPath(path.GetPrimPath()).RemoveProperty(spec)
+    if data.pseudoRoot.nameChildren:
+        text.subLayerPaths.insert(0, _relative(data_file, target.parent))
+        return text, data
+    return text, None
+
+
+def save_layer(layer: Sdf.Layer, path: str | os.PathLike[str] | None = None, *, split: bool = True) -> Path:
     """Write ``layer`` to ``path`` (default: its own file) atomically: temp file, then rename.
+
+    A text (``.usda``) layer keeps its large arrays and long time samples (see :data:`ARRAY_LIMIT`) in a crate
+    file of its own, :func:`data_layer_path`, which it sublayers first, unless ``split`` is False (a flattened,
+    self-contained file). The layer in memory stays whole.
 
     Returns:
         The path written.
@@ -99,10 +173,26 @@ def save_layer(layer: Sdf.Layer, path: str | os.PathLike[str] | None = None) -> 
     target = Path(path) if path is not None else layer_path(layer)
     if target is None:
         raise SceneError("the scene is in memory: give a file path to save it to")
+    target = target.absolute()
+    out, data = layer, None
+    if split and target.suffix == ".usda":
+        out, data = _split(layer, target)
+    data_file = data_layer_path(target)
+    if data is not None:
+        _export(data, data_file)
+        loaded = Sdf.Layer.Find(str(data_file))
+        if loaded is not None:
+            loaded.Reload(force=True)  # a stage holding the old data file sees the new one
+    _export(out, target)
+    if data is None and split and target.suffix == ".usda" and data_file.is_file():
+        data_file.unlink()  # this layer has no large arrays any more
+    return target
+
+
+def _export(layer: Sdf.Layer, target: Path) -> None:
     with atomic_path(target) as tmp:
         if not layer.Export(str(tmp)):
             raise SceneError(f"{target}: USD failed to write the layer; check disk space and permissions")
-    return target
 
 
 def open_layer_stack(path: Path, seen: frozenset[Path] = frozenset()) -> list[Sdf.Layer]:

@@ -175,6 +175,15 @@ def set_normals(geom: UsdGeom.Mesh, points: np.ndarray, faces: np.ndarray, *, sm
     geom.SetNormalsInterpolation(UsdGeom.Tokens.vertex if smooth else UsdGeom.Tokens.uniform)
 
 
+def _set_indexed(primvar: UsdGeom.Primvar, values: np.ndarray) -> None:
+    """Author ``values`` [N, C] (float32) as an indexed primvar: each distinct value once, and an index per entry."""
+    values = np.ascontiguousarray(values, dtype=np.float32)
+    distinct, index = np.unique(values, axis=0, return_inverse=True)
+    array = Vt.Vec3fArray if values.shape[1] == 3 else Vt.Vec2fArray
+    primvar.Set(array.FromNumpy(np.ascontiguousarray(distinct)))
+    primvar.SetIndices(Vt.IntArray.FromNumpy(index.reshape(-1).astype(np.int32)))
+
+
 def _relative_asset(target: Path, layer: Sdf.Layer) -> str:
     anchor = layer_path(layer)
     assert anchor is not None
@@ -347,7 +356,7 @@ class SceneGraph:
     def flatten(self, path: str | os.PathLike[str]) -> Path:
         """Write the composed scene (all layers and references merged) to one file, atomically."""
         flat = self._stage.Flatten()
-        return save_layer(flat, path)
+        return save_layer(flat, path, split=False)
 
     # ------------------------------------------------------------------ layers
     def push_layer(self, path: str | os.PathLike[str], *, provenance: str | None = None, replace: bool = False) -> None:
@@ -713,7 +722,7 @@ class SceneGraph:
         colors = np.clip(colors, 0.0, 1.0)
         primvar = UsdGeom.PrimvarsAPI(geom).CreatePrimvar("displayColor", Sdf.ValueTypeNames.Color3fArray,
                                                           UsdGeom.Tokens.vertex)  # fmt: skip
-        primvar.Set(_vec3f_array(colors))
+        _set_indexed(primvar, colors)
         node = self.node_name(prim.GetPath())
         look = LOOKS_PATH.AppendChild("Background" if prim.GetPath() == BACKGROUND_PATH else f"Object_{node}")
         UsdGeom.Scope.Define(self._stage, LOOKS_PATH)
@@ -733,11 +742,87 @@ class SceneGraph:
         UsdShade.MaterialBindingAPI.Apply(geom).Bind(material)
         self._stamp(prim)
 
+    def set_surface_texture(self, name: str, st: np.ndarray, image: np.ndarray) -> Path:
+        """Texture a node's mesh: the image goes to ``assets/<layer>/<name>.png`` beside the layer, the mesh gets
+        ``primvars:st`` (one coordinate per face corner, faceVarying), and the node's visual material (written by
+        :meth:`set_surface_color`, which must come first) takes its diffuse colour from the texture through a
+        ``UsdUVTexture`` (sRGB); ``displayColor`` stays on the mesh for tools that read no textures.
+
+        Args:
+            name: Node name.
+            st: [F, 3, 2] texture coordinates of each triangle's corners, (0, 0) at the image's bottom left.
+            image: [H, W, 3] uint8 sRGB-encoded texels, row 0 at the top.
+
+        Returns:
+            The image file written.
+        """
+        from PIL import Image
+
+        prim = self._prim(name)
+        geom = prim.GetChild("Geom")
+        counts = geom.GetAttribute("faceVertexCounts").Get() if geom else None
+        st = np.asarray(st, dtype=np.float32)
+        if counts is None or st.shape != (len(counts), 3, 2) or not np.all(np.isfinite(st)):
+            raise InvalidDataError(f"{self._where()}: {name!r}: st must be [{len(counts or [])}, 3, 2] finite "
+                                   f"coordinates, one per triangle corner; got shape {st.shape}")  # fmt: skip
+        image = np.asarray(image)
+        if image.dtype != np.uint8 or image.ndim != 3 or image.shape[2] != 3 or min(image.shape[:2]) == 0:
+            raise InvalidDataError(f"{self._where()}: {name!r}: the texture must be an [H, W, 3] uint8 image")
+        material = UsdShade.MaterialBindingAPI(geom).GetDirectBinding().GetMaterial()
+        surface = UsdShade.Shader(self._stage.GetPrimAtPath(material.GetPath().AppendChild("Surface"))) \
+            if material else None  # fmt: skip
+        if not surface:
+            raise SceneError(f"{self._where()}: {name!r} has no visual material; call set_surface_color() first")
+        target = self._asset_file(name, ".png")
+        with atomic_path(target) as tmp:
+            Image.fromarray(image).save(tmp, format="PNG")
+        primvar = UsdGeom.PrimvarsAPI(geom).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray,
+                                                          UsdGeom.Tokens.faceVarying)  # fmt: skip
+        _set_indexed(primvar, st.reshape(-1, 2))
+        look = material.GetPath()
+        reader = UsdShade.Shader.Define(self._stage, look.AppendChild("TexCoords"))
+        reader.CreateIdAttr("UsdPrimvarReader_float2")
+        reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("st")
+        coords = reader.CreateOutput("result", Sdf.ValueTypeNames.Float2)
+        texture = UsdShade.Shader.Define(self._stage, look.AppendChild("Texture"))
+        texture.CreateIdAttr("UsdUVTexture")
+        layer = self._stage.GetEditTarget().GetLayer()
+        texture.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(_relative_asset(target, layer)))
+        texture.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(coords)
+        texture.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("sRGB")
+        for wrap in ("wrapS", "wrapT"):
+            texture.CreateInput(wrap, Sdf.ValueTypeNames.Token).Set("clamp")
+        mean = image.reshape(-1, 3).mean(axis=0) / 255.0
+        texture.CreateInput("fallback", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(*map(float, mean), 1.0))
+        rgb = texture.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
+        surface.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(rgb)
+        self._stamp(prim)
+        return target
+
+    def get_surface_texture(self, name: str) -> tuple[np.ndarray, np.ndarray] | None:
+        """([F, 3, 2] st per triangle corner, [H, W, 3] uint8 image) of a textured node, or None."""
+        from PIL import Image
+
+        geom = self._prim(name).GetChild("Geom")
+        primvar = UsdGeom.PrimvarsAPI(geom).GetPrimvar("st") if geom else None
+        material = UsdShade.MaterialBindingAPI(geom).GetDirectBinding().GetMaterial() if geom else None
+        texture = self._stage.GetPrimAtPath(material.GetPath().AppendChild("Texture")) if material else None
+        if not primvar or not primvar.HasValue() or not texture:
+            return None
+        asset = texture.GetAttribute("inputs:file").Get()
+        where = f"{self._where()}:{texture.GetPath()}"
+        if asset is None or not asset.resolvedPath:
+            raise SceneError(f"{where}: its texture file {asset.path if asset else ''!r} is missing; restore the "
+                             "assets/ folder or re-run the appearance stage")  # fmt: skip
+        with Image.open(asset.resolvedPath) as img:
+            image = np.asarray(img.convert("RGB"))
+        return np.asarray(primvar.ComputeFlattened(), dtype=np.float64).reshape(-1, 3, 2), image
+
     def get_surface_color(self, name: str) -> np.ndarray | None:
         """[P, 3] linear RGB per point of the node's Geom (``primvars:displayColor``), or None when not coloured."""
         geom = self._prim(name).GetChild("Geom")
         primvar = UsdGeom.PrimvarsAPI(geom).GetPrimvar("displayColor") if geom else None
-        value = primvar.Get() if primvar and primvar.HasValue() else None
+        value = primvar.ComputeFlattened() if primvar and primvar.HasValue() else None
         return None if value is None else np.asarray(value, dtype=np.float64).reshape(-1, 3)
 
     def get_gaussians(self, name: str) -> GaussianSplats:
