@@ -167,3 +167,29 @@ def test_texture_baked_from_the_splats_is_bound_through_a_preview_surface(exampl
     source = surface.GetInput("diffuseColor").GetConnectedSources()[0][0].source
     assert UsdShade.Shader(source.GetPrim()).GetIdAttr().Get() == "UsdUVTexture"
     assert reread.get_surface_texture("mug") is None
+
+
+def test_export_glb_carries_the_baked_texture(example_copy: Path, tmp_path: Path) -> None:
+    import trimesh
+
+    from holousd.render._bake import bake_texture, vertex_colors
+
+    scene = SceneGraph.open(example_copy)
+    mesh, splats = scene.get_mesh("table"), scene.get_gaussians("table")
+    texture = bake_texture(mesh, splats)
+    edited = example_copy.parent / "edit_texture.usda"
+    with scene.edit(edited):
+        scene.set_surface_color("table", vertex_colors(mesh, splats))
+        scene.set_surface_texture("table", texture.st, texture.image)
+    out = tmp_path / "glb"
+    assert main(["export", str(edited), "--glb", str(out)]) == 0
+    table = trimesh.load(out / "table.glb", force="mesh", process=False)
+    assert table.visual.kind == "texture"
+    assert np.array_equal(np.asarray(table.visual.material.baseColorTexture.convert("RGB")), texture.image)
+    world = scene.get_pose("table").apply(mesh.points)
+    corners = np.concatenate([world[mesh.faces].reshape(-1, 3), texture.st.reshape(-1, 2)], axis=1)
+    loaded = np.concatenate([table.vertices[:, [0, 2, 1]] * [1, -1, 1], table.visual.uv], axis=1)  # back to Z-up
+    ours = {tuple(v) for v in np.round(corners, 4)}
+    theirs = {tuple(v) for v in np.round(loaded, 4)}
+    assert theirs == ours  # every corner's point and texture coordinate, nothing else
+    assert len(table.faces) == len(mesh.faces)

@@ -106,8 +106,9 @@ _Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
 def export_glb(scene, out: str | os.PathLike[str]) -> list[Path]:  # noqa: ANN001 - holousd.SceneGraph
     """Write every node's rendered mesh as ``out/<node>.glb`` and all of them as ``out/scene.glb`` (one named
     mesh per node): world frame (the node's pose, edit layers included) turned to glTF's Y-up, metres, with the
-    per-vertex colour baked by the appearance stage as COLOR_0 (grey where none was baked). Each file is written
-    whole to a temporary name, then renamed.
+    texture baked by the appearance stage as the base colour texture (the mesh's points split where its UV atlas
+    has seams), else the per-point colour as COLOR_0 (grey where none was baked). Each file is written whole to
+    a temporary name, then renamed.
 
     Returns:
         The files written, the scene's last.
@@ -123,6 +124,10 @@ def export_glb(scene, out: str | os.PathLike[str]) -> list[Path]:  # noqa: ANN00
         if len(mesh.faces) == 0:
             continue
         world = scene.get_pose(node.name).apply(np.asarray(mesh.points, np.float64)) @ _Y_UP.T
+        texture = scene.get_surface_texture(node.name)
+        if texture is not None:
+            meshes.append((node.name, _textured(world, np.asarray(mesh.faces), *texture)))
+            continue
         colors = scene.get_surface_color(node.name)
         rgba = np.full((len(world), 4), 255, np.uint8)
         rgba[:, :3] = np.round(255 * (np.clip(colors, 0, 1) if colors is not None else 0.5)).astype(np.uint8)
@@ -135,6 +140,19 @@ def export_glb(scene, out: str | os.PathLike[str]) -> list[Path]:  # noqa: ANN00
         whole.add_geometry(mesh, node_name=name, geom_name=name)
     return write_node_files(out, [(name, mesh.export(file_type="glb")) for name, mesh in meshes],
                             whole.export(file_type="glb"), ".glb")  # fmt: skip
+
+
+def _textured(points: np.ndarray, faces: np.ndarray, st: np.ndarray, image: np.ndarray):  # noqa: ANN202
+    """A trimesh with one vertex per distinct (point, texture coordinate) pair and ``image`` as its base colour."""
+    import trimesh
+    from PIL import Image
+
+    corner_keys = np.concatenate([faces.reshape(-1, 1).astype(np.float64), st.reshape(-1, 2)], axis=1)
+    keys, index = np.unique(corner_keys, axis=0, return_inverse=True)
+    material = trimesh.visual.material.PBRMaterial(baseColorTexture=Image.fromarray(image), metallicFactor=0.0,
+                                                   roughnessFactor=0.8)  # fmt: skip
+    visual = trimesh.visual.TextureVisuals(uv=keys[:, 1:], material=material)
+    return trimesh.Trimesh(points[keys[:, 0].astype(np.int64)], index.reshape(-1, 3), visual=visual, process=False)
 
 
 def write_node_files(out: str | os.PathLike[str], nodes: list[tuple[str, bytes]], whole: bytes,
