@@ -20,14 +20,16 @@ from __future__ import annotations
 
 import contextlib
 import os
+import sys
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from holousd._errors import HolousdError
 
-__all__ = ["TaskOutcome", "TaskPool", "available_cores", "overhead", "require_ray", "run_tasks"]
+__all__ = ["TaskOutcome", "TaskPool", "available_cores", "machine_info", "overhead", "require_ray", "run_tasks"]
 
 
 @dataclass(kw_only=True)
@@ -267,3 +269,31 @@ def _run_ray(fn: Callable[..., Any], tasks: list[tuple[str, tuple]], address: st
             if on_done is not None:
                 on_done(outcomes[k])
     return [outcomes[k] for k in range(len(tasks))]
+
+
+def machine_info() -> dict[str, Any]:
+    """Where a benchmark ran: CPU model, core count, memory, OS, Python, torch threads, holousd version."""
+    import platform
+
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    memory_gb = None
+    try:
+        memory_gb = round(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30, 1)
+    except (ValueError, OSError, AttributeError):
+        pass
+    from holousd import __version__
+
+    cores = available_cores()
+
+    torch_threads = None
+    if "torch" in sys.modules:
+        torch_threads = sys.modules["torch"].get_num_threads()
+    return {"cpu": cpu, "cores": cores, "memory_gb": memory_gb, "os": platform.platform(),
+            "python": platform.python_version(), "torch_threads": torch_threads, "holousd": __version__}  # fmt: skip

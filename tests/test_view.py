@@ -91,8 +91,7 @@ def test_drop_from_the_edited_state_lands_the_lifted_mug_and_saves_a_playable_mo
 
 def test_page_serves_the_scene_and_a_client_moves_saves_and_pushes(example_copy: Path) -> None:
     from holousd.view import ViewServer
-
-    from .page_client import PageClient
+    from holousd.view._client import PageClient
 
     session = ViewSession(example_copy, ViewConfig(seconds=1.0, push_speed=1.0))
     server = ViewServer(session, port=0)
@@ -172,3 +171,17 @@ def test_chromium_shows_the_scene_on_the_page(example_copy: Path, tmp_path: Path
     view = image[60:-60, 40:image.shape[1] // 2]
     colours = np.unique((view // 8).reshape(-1, 3), axis=0)
     assert len(colours) > 50, f"the page shows {len(colours)} colours in its 3D view: is the scene there?"
+
+
+def test_bench_view_times_the_page_and_a_drop(example_copy: Path, tmp_path: Path) -> None:
+    import json
+
+    assert main(["bench-view", str(example_copy), "--out", str(tmp_path / "bench"), "--seconds", "0.25"]) == 0
+    result = json.loads((tmp_path / "bench" / "bench_view.json").read_text())
+    assert result["nodes"] == 5 and result["nodes_with_splats"] == 4 and result["splats"] == 8000
+    assert 0 < result["server_ready_s"] <= result["first_splats_s"] <= result["page_complete_s"]
+    assert result["first_frame_target_met"] == (result["page_complete_s"] <= result["first_frame_target_s"])
+    drop = result["drop"]
+    assert drop["simulated_s"] == pytest.approx(0.25, abs=0.01) and drop["objects"] == 4 and drop["wall_s"] > 0
+    assert drop["furthest_moved_cm"] < 2.0  # the example scene stands
+    assert result["machine"]["cores"] >= 1

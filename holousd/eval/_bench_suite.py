@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from holousd._atomic import atomic_path
+from holousd._tasks import machine_info
 
 __all__ = [
     "BenchSuiteConfig",
@@ -139,35 +140,6 @@ def chart_vs_time(runs: list[dict[str, Any]], path: str | os.PathLike[str], *,
     with atomic_path(path) as tmp:
         img.save(tmp, format="PNG")
     return path
-
-
-def machine_info() -> dict[str, Any]:
-    """Where a benchmark ran: CPU model, core count, memory, OS, Python, torch threads, holousd version."""
-    import platform
-
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    memory_gb = None
-    try:
-        memory_gb = round(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30, 1)
-    except (ValueError, OSError, AttributeError):
-        pass
-    from holousd import __version__
-    from holousd._tasks import available_cores
-
-    cores = available_cores()
-
-    torch_threads = None
-    if "torch" in sys.modules:
-        torch_threads = sys.modules["torch"].get_num_threads()
-    return {"cpu": cpu, "cores": cores, "memory_gb": memory_gb, "os": platform.platform(),
-            "python": platform.python_version(), "torch_threads": torch_threads, "holousd": __version__}  # fmt: skip
 
 
 def _mean(values: list[float | None]) -> float | None:

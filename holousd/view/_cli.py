@@ -13,7 +13,7 @@ __all__ = ["add_commands"]
 
 
 def add_commands(subparsers: argparse._SubParsersAction) -> None:
-    """Register ``view`` on the ``holousd`` parser."""
+    """Register ``view`` and ``bench-view`` on the ``holousd`` parser."""
     view = subparsers.add_parser(
         "view",
         help="browser viewer and editor: splats or meshes, support tree, move objects, live physics",
@@ -46,15 +46,49 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
                       help="stop after this many seconds (scripts, smoke tests); default: until Ctrl-C")  # fmt: skip
     view.set_defaults(handler=_view)
 
+    bench = subparsers.add_parser(
+        "bench-view",
+        help="viewer benchmark: seconds until the page has the scene, and drop simulation speed",
+        description="Start 'holousd view SCENE' in a new process, connect a page client and time the server's start, "
+        "the first node's splats at the client and the whole page (every node and control; the target is 5 s), "
+        "then simulate a drop of the scene and time it. Writes DIR/bench_view.json.",
+        formatter_class=HelpFormatter,
+    )
+    bench.add_argument("scene", type=Path, metavar="SCENE", help="scene file (.usda/.usdc/.usd)")
+    bench.add_argument("--out", type=Path, required=True, metavar="DIR", help="folder for bench_view.json")
+    bench.add_argument("--seconds", type=float, default=1.0, help="simulated time of the timed drop, s")
+    bench.add_argument("--hz", type=float, default=240.0, help="simulation step rate of the timed drop, 1/s")
+    bench.set_defaults(handler=_bench)
 
-def _view(args: argparse.Namespace) -> int:
+
+def _need_viser(command: str) -> None:
     from holousd._errors import HolousdError
 
     try:
         import viser  # noqa: F401
     except ImportError as exc:
-        raise HolousdError("holousd view needs viser, which is not installed: pip install -e '.[view]' "
+        raise HolousdError(f"holousd {command} needs viser, which is not installed: pip install -e '.[view]' "
                            "(or pip install viser)") from exc  # fmt: skip
+
+
+def _bench(args: argparse.Namespace) -> int:
+    from holousd._errors import HolousdError
+
+    _need_viser("bench-view")
+    if min(args.seconds, args.hz) <= 0:
+        raise HolousdError(f"--seconds ({args.seconds}) and --hz ({args.hz}) must be positive")
+    from ._bench import bench_view
+
+    path = bench_view(args.scene, args.out, seconds=args.seconds, hz=args.hz,
+                      log=lambda line: print(f"bench-view: {line}", file=sys.stderr, flush=True))  # fmt: skip
+    print(path.read_text())
+    return 0
+
+
+def _view(args: argparse.Namespace) -> int:
+    from holousd._errors import HolousdError
+
+    _need_viser("view")
     if min(args.seconds, args.push_speed, args.hz) <= 0:
         raise HolousdError(f"--seconds ({args.seconds}), --push-speed ({args.push_speed}) and --hz ({args.hz}) "
                            "must be positive")

@@ -1,6 +1,6 @@
-"""A minimal client of a viser page, for the viewer's tests: it speaks the page's websocket protocol as the browser
-does (it sends msgpack messages; the server's frames are zstd-compressed msgpack followed by raw binary buffers,
-which this client does not need)."""
+"""A minimal client of the viewer's page, for its tests and ``holousd bench-view``: it speaks the page's websocket
+protocol as the browser does (it sends msgpack messages; the server's frames are zstd-compressed msgpack followed by
+raw binary buffers, which this client does not need)."""
 
 from __future__ import annotations
 
@@ -11,6 +11,8 @@ import msgspec
 import viser
 import zstandard
 from websockets.sync.client import connect
+
+__all__ = ["PageClient"]
 
 
 class PageClient:
