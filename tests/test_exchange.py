@@ -128,7 +128,7 @@ def test_texture_baked_from_the_splats_is_bound_through_a_preview_surface(exampl
     from pxr import UsdShade
 
     from holousd import InvalidDataError, SceneError
-    from holousd.render._bake import bake_texture, sample_texture, surface_srgb, vertex_colors
+    from holousd.render._bake import bake_texture, sample_texture, srgb_from_linear, surface_srgb, vertex_colors
 
     scene = SceneGraph.open(example_copy)
     mesh, splats = scene.get_mesh("table"), scene.get_gaussians("table")
@@ -144,8 +144,7 @@ def test_texture_baked_from_the_splats_is_bound_through_a_preview_surface(exampl
     assert np.abs(sample_texture(texture.image, st) - direct).mean() < 6.0 / 255.0
     # and it is more faithful than the per-point colours interpolated across each face
     corner = vertex_colors(mesh, splats)
-    linear = np.einsum("nk,nkc->nc", bary, corner[mesh.faces[faces]])
-    per_point = np.where(linear <= 0.0031308, 12.92 * linear, 1.055 * linear ** (1 / 2.4) - 0.055)
+    per_point = srgb_from_linear(np.einsum("nk,nkc->nc", bary, corner[mesh.faces[faces]]))
     assert np.abs(sample_texture(texture.image, st) - direct).mean() < np.abs(per_point - direct).mean()
 
     with pytest.raises(SceneError, match="set_surface_color"):

@@ -206,7 +206,7 @@ def _mesh_psnr(scene: Any, obs: Any, frames: list[int], notes: list[str]) -> tup
 
     from holousd.eval._image import psnr
     from holousd.render import Camera
-    from holousd.render._bake import sample_texture
+    from holousd.render._bake import sample_texture, srgb_from_linear
     from holousd.render._raycast import raycast
     from holousd.usd import MeshData
 
@@ -217,8 +217,7 @@ def _mesh_psnr(scene: Any, obs: Any, frames: list[int], notes: list[str]) -> tup
             continue
         mesh = scene.get_mesh(node.name)
         meshes.append(MeshData(points=scene.get_pose(node.name).apply(mesh.points), faces=mesh.faces))
-        colour = np.clip(colour, 0.0, 1.0)
-        colours.append(np.where(colour <= 0.0031308, 12.92 * colour, 1.055 * colour ** (1 / 2.4) - 0.055))
+        colours.append(srgb_from_linear(colour))
         textures.append(scene.get_surface_texture(node.name))
     if not meshes:
         notes.append("render: no mesh carries baked colour (primvars:displayColor); mesh PSNR is null")

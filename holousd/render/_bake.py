@@ -16,13 +16,20 @@ import numpy as np
 from holousd.render._binding import SH_C0, splats_in_world
 from holousd.usd import GaussianSplats, MeshData, Pose
 
-__all__ = ["Texture", "bake_texture", "linear_from_srgb", "sample_texture", "surface_srgb", "vertex_colors"]
+__all__ = ["Texture", "bake_texture", "linear_from_srgb", "sample_texture", "srgb_from_linear", "surface_srgb",
+           "vertex_colors"]
 
 
 def linear_from_srgb(values: np.ndarray) -> np.ndarray:
     """The sRGB transfer function undone (IEC 61966-2-1), values in [0, 1]."""
     v = np.clip(np.asarray(values, np.float64), 0.0, 1.0)
     return np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4)
+
+
+def srgb_from_linear(values: np.ndarray) -> np.ndarray:
+    """The sRGB transfer function (IEC 61966-2-1): linear values in [0, 1] to the encoded values screens show."""
+    v = np.clip(np.asarray(values, np.float64), 0.0, 1.0)
+    return np.where(v <= 0.0031308, 12.92 * v, 1.055 * v ** (1.0 / 2.4) - 0.055)
 
 
 def surface_srgb(points: np.ndarray, mesh: MeshData, splats: GaussianSplats, *, neighbours: int = 8) -> np.ndarray:

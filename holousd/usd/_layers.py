@@ -96,6 +96,11 @@ def new_layer_over(base: Sdf.Layer, path: str | os.PathLike[str]) -> Sdf.Layer:
     return layer
 
 
+def sublayer_files(layer: Sdf.Layer) -> list[Path]:
+    """The files ``layer`` sublayers, resolved to absolute paths."""
+    return [Path(layer.ComputeAbsolutePath(p)).resolve() for p in layer.subLayerPaths]
+
+
 def data_layer_path(layer_file: str | os.PathLike[str]) -> Path:
     """The crate file holding the large arrays of the text layer ``layer_file``: ``assets/<stem>/arrays.usdc``
     beside it, sublayered first (just under the text layer, over everything below it)."""

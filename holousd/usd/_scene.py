@@ -29,7 +29,14 @@ from pxr import Gf, Sdf, Tf, Usd, UsdGeom, UsdPhysics, UsdShade, UsdVol, Vt
 
 from holousd._atomic import atomic_path
 from holousd._errors import InvalidDataError, SceneError, SchemaVersionError
-from holousd.usd._layers import layer_path, new_layer_over, open_layer_stack, save_layer, usd_error_text
+from holousd.usd._layers import (
+    layer_path,
+    new_layer_over,
+    open_layer_stack,
+    save_layer,
+    sublayer_files,
+    usd_error_text,
+)
 from holousd.usd._plugin import SCHEMA_VERSION
 from holousd.usd._types import (
     CameraData,
@@ -383,7 +390,7 @@ class SceneGraph:
                 ) from exc
             if existing is None:
                 raise SceneError(f"{path}: exists but is not a readable layer; delete it or choose another name")
-            below = [Path(existing.ComputeAbsolutePath(p)).resolve() for p in existing.subLayerPaths]
+            below = sublayer_files(existing)
             if base_file is None or base_file.resolve() not in below:
                 raise SceneError(
                     f"{path}: exists and does not sublayer {base_file or 'this in-memory scene'}; "

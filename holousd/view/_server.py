@@ -100,11 +100,15 @@ class ViewServer:
                     handle.on_click(lambda _event, n=name: self.select(n))
                 self._meshes[name] = handle
 
-    def _place(self, name: str, pose: Pose) -> None:
-        frame = self._frames[name]
+    def _show_edited(self) -> None:
+        self._place_all({name: node.pose for name, node in self.session.nodes.items()})
+
+    def _place_all(self, poses: dict[str, Pose]) -> None:
+        """Move nodes' frames (their splats and meshes follow) in one update of the page."""
         with self.server.atomic():
-            frame.position = pose.translation
-            frame.wxyz = _wxyz(pose)
+            for name, pose in poses.items():
+                self._frames[name].position = pose.translation
+                self._frames[name].wxyz = _wxyz(pose)
 
     def show(self, what: str) -> None:
         """Show ``splats``, ``meshes`` or ``both`` (a node without splats always shows its mesh)."""
@@ -169,8 +173,7 @@ class ViewServer:
             self._gizmo.remove()
             self._gizmo = None
         self.selected = name
-        for node_name, node in self.session.nodes.items():  # back from a played motion to the edited poses
-            self._place(node_name, node.pose)
+        self._show_edited()  # back from a played motion to the edited poses
         if self._pick.value != (name or "(none)"):
             self._pick.value = name or "(none)"
         if name is None:
@@ -191,13 +194,12 @@ class ViewServer:
     def move(self, name: str, pose: Pose) -> None:
         """Move an object (as the gizmo does)."""
         self.session.move(name, pose)
-        self._place(name, pose)
+        self._place_all({name: pose})
 
     def reset(self) -> None:
         """Put the selected object (none selected: every object) back where the scene had it."""
         self.session.reset(self.selected)
-        for name, node in self.session.nodes.items():
-            self._place(name, node.pose)
+        self._show_edited()
         if self.selected is not None:
             self.select(self.selected)
         self._tree.content = self._tree_text()
@@ -225,11 +227,7 @@ class ViewServer:
                 self._gizmo = None
 
             def on_step(_t: float, poses: dict[str, Pose]) -> bool:
-                with self.server.atomic():
-                    for name, pose in poses.items():
-                        frame = self._frames[name]
-                        frame.position = pose.translation
-                        frame.wxyz = _wxyz(pose)
+                self._place_all(poses)
                 return self._stop.is_set()
 
             def progress(f: float) -> None:
@@ -240,8 +238,7 @@ class ViewServer:
             self._say(_motion_text(motion) + ". Keep final poses to edit from there; pick an object to return to "
                       "the edited poses")
         except HolousdError as exc:
-            for name, node in self.session.nodes.items():
-                self._place(name, node.pose)
+            self._show_edited()
             self._say(f"error: {exc}")
         finally:
             self._lock.release()
@@ -258,16 +255,12 @@ class ViewServer:
             delay = t / speed - (time.perf_counter() - start)
             if delay > 0:
                 time.sleep(delay)
-            with self.server.atomic():
-                for name, poses in motion.poses.items():
-                    self._frames[name].position = poses[k].translation
-                    self._frames[name].wxyz = _wxyz(poses[k])
+            self._place_all({name: poses[k] for name, poses in motion.poses.items()})
 
     def keep(self) -> None:
         """Take where the last motion left every object as the edited poses."""
         self.session.settle()
-        for name, node in self.session.nodes.items():
-            self._place(name, node.pose)
+        self._show_edited()
         self._tree.content = self._tree_text()
         self._say(f"kept the final poses ({len(self.session.moved())} object(s) moved); save edits to write them")
 

@@ -16,7 +16,9 @@ import numpy as np
 
 from holousd._errors import SceneError
 from holousd.render import SH_C0, splats_in_world
+from holousd.render._bake import srgb_from_linear
 from holousd.usd import BACKGROUND, CameraData, MeshData, Pose, SceneGraph
+from holousd.usd._layers import sublayer_files
 
 __all__ = ["Motion", "NodeView", "SplatArrays", "ViewConfig", "ViewSession"]
 
@@ -156,7 +158,7 @@ class ViewSession:
             self.nodes[name] = NodeView(
                 name=name, pose=pose, loaded=pose, parent=self.scene.get_support(name) if name != BACKGROUND else None,
                 dynamic=mass is not None, mass_kg=mass, mesh=mesh,
-                mesh_rgb=None if rgb is None else np.clip(_srgb(rgb), 0.0, 1.0),
+                mesh_rgb=None if rgb is None else srgb_from_linear(rgb),
                 splats=_splat_arrays(self.scene, name, mesh),
             )  # fmt: skip
         self.edit_path: Path | None = None
@@ -361,16 +363,10 @@ def _check_replaceable(layer_file: Path, scene: Path) -> None:
         layer = Sdf.Layer.FindOrOpen(str(layer_file))
     except Tf.ErrorException:
         layer = None
-    below = [] if layer is None else [Path(layer.ComputeAbsolutePath(p)).resolve() for p in layer.subLayerPaths]
+    below = [] if layer is None else sublayer_files(layer)
     if scene.resolve() not in below:
         raise SceneError(f"{layer_file}: exists and is not an edit layer over {scene}; "
                          "choose another --edit-layer or delete it")
-
-
-def _srgb(linear: np.ndarray) -> np.ndarray:
-    """Linear RGB -> sRGB-encoded values (what a browser shows)."""
-    linear = np.clip(np.asarray(linear, dtype=np.float64), 0.0, 1.0)
-    return np.where(linear <= 0.0031308, 12.92 * linear, 1.055 * np.power(linear, 1.0 / 2.4) - 0.055)
 
 
 def _same_pose(a: Pose, b: Pose) -> bool:
