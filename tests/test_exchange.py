@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from pxr import Sdf, Usd, UsdGeom, UsdShade
 from scipy.spatial.transform import Rotation
 
 from holousd import Pose, SceneGraph
@@ -125,8 +126,6 @@ def test_export_glb_has_world_meshes_turned_y_up_with_their_colours(example_copy
 
 
 def test_texture_baked_from_the_splats_is_bound_through_a_preview_surface(example_copy: Path) -> None:
-    from pxr import UsdShade
-
     from holousd import InvalidDataError, SceneError
     from holousd.render._bake import bake_texture, sample_texture, srgb_from_linear, surface_srgb, vertex_colors
 
@@ -166,6 +165,14 @@ def test_texture_baked_from_the_splats_is_bound_through_a_preview_surface(exampl
     source = surface.GetInput("diffuseColor").GetConnectedSources()[0][0].source
     assert UsdShade.Shader(source.GetPrim()).GetIdAttr().Get() == "UsdUVTexture"
     assert reread.get_surface_texture("mug") is None
+    with reread.edit(example_copy.parent / "edit_colour.usda"):  # a later layer colours it by displayColor again
+        reader = UsdShade.Shader(reread.stage.GetPrimAtPath(material.GetPath().AppendChild("DisplayColor")))
+        surface.GetInput("diffuseColor").ConnectToSource(reader.GetOutput("result"))
+        assert reread.get_surface_texture("table") is None
+        surface.GetInput("diffuseColor").ConnectToSource(UsdShade.Shader(source.GetPrim()).GetOutput("rgb"))
+        UsdGeom.PrimvarsAPI(geom).GetPrimvar("st").SetIndices(list(range(len(mesh.faces))))  # stale coordinates
+        with pytest.raises(SceneError, match="primvars:st has"):
+            reread.get_surface_texture("table")
 
 
 def test_export_glb_carries_the_baked_texture(example_copy: Path, tmp_path: Path) -> None:
@@ -192,3 +199,17 @@ def test_export_glb_carries_the_baked_texture(example_copy: Path, tmp_path: Path
     theirs = {tuple(v) for v in np.round(loaded, 4)}
     assert theirs == ours  # every corner's point and texture coordinate, nothing else
     assert len(table.faces) == len(mesh.faces)
+    # The sim export stands alone: no link to the texture's image file; the colour reads displayColor again.
+    sim = tmp_path / "sim" / "sim.usda"
+    assert main(["export", str(edited), "--sim", str(sim)]) == 0
+    stage = Usd.Stage.Open(str(sim))
+    assets = [a.GetPath() for p in stage.Traverse() for a in p.GetAttributes()
+              if a.GetTypeName() == Sdf.ValueTypeNames.Asset and a.Get() is not None]  # fmt: skip
+    assert assets == []
+    geom = stage.GetPrimAtPath("/World/Objects/table/Geom")
+    assert not UsdGeom.PrimvarsAPI(geom).HasPrimvar("st") and UsdGeom.PrimvarsAPI(geom).HasPrimvar("displayColor")
+    material = UsdShade.MaterialBindingAPI(geom).ComputeBoundMaterial()[0]
+    surface = UsdShade.Shader(stage.GetPrimAtPath(material.GetPath().AppendChild("Surface")))
+    source = surface.GetInput("diffuseColor").GetConnectedSources()[0][0].source
+    reader = UsdShade.Shader(source.GetPrim())
+    assert reader.GetIdAttr().Get() == "UsdPrimvarReader_float3" and reader.GetInput("varname").Get() == "displayColor"

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -327,6 +328,8 @@ def test_large_arrays_and_long_time_samples_go_to_a_crate_file_under_the_text_la
     scene.set_mesh("cup", big)
     prim = scene.stage.GetPrimAtPath("/World/Objects/cup")
     prim.CreateAttribute("holo:test:few", Sdf.ValueTypeNames.FloatArray).Set([1.0, 2.0])
+    images = prim.CreateAttribute("holo:test:images", Sdf.ValueTypeNames.AssetArray)
+    images.Set(Sdf.AssetPathArray([f"./frames/{k}.png" for k in range(80)]))  # paths stay where they resolve
     spin = prim.CreateAttribute("holo:test:spin", Sdf.ValueTypeNames.Float)
     for t in range(6):
         spin.Set(float(t), Usd.TimeCode(t))
@@ -340,6 +343,7 @@ def test_large_arrays_and_long_time_samples_go_to_a_crate_file_under_the_text_la
     assert len(text.GetAttributeAtPath("/World/Objects/cup/Geom.faceVertexCounts").default) == 40  # not > 64
     assert text.GetAttributeAtPath("/World/Objects/cup.holo:test:spin") is None  # 6 time samples
     assert list(text.GetAttributeAtPath("/World/Objects/cup.holo:test:few").default) == [1.0, 2.0]
+    assert len(text.GetAttributeAtPath("/World/Objects/cup.holo:test:images").default) == 80
 
     reread = SceneGraph.open(path)  # a fresh read composes the same scene
     np.testing.assert_allclose(reread.get_mesh("cup").points, big.points, atol=1e-6)
@@ -352,6 +356,14 @@ def test_large_arrays_and_long_time_samples_go_to_a_crate_file_under_the_text_la
     fresh = Sdf.Layer.OpenAsAnonymous(str(data))
     assert np.abs(np.asarray(fresh.GetAttributeAtPath("/World/Objects/cup/Geom.points").default)).max() == 0.0
     assert fresh.GetAttributeAtPath("/World/Objects/cup.holo:test:spin") is not None
+    # Saved elsewhere, a layer read from disk takes its crate data along (folded from its own data file).
+    shutil.copytree(tmp_path, tmp_path.parent / f"{tmp_path.name}_moved")  # a layer no process has open yet
+    read = Sdf.Layer.FindOrOpen(str(tmp_path.parent / f"{tmp_path.name}_moved" / "scene.usda"))
+    assert list(read.subLayerPaths) == ["./assets/scene/arrays.usdc"]
+    copy = holousd.usd.save_layer(read, tmp_path / "copy.usda")
+    assert data_layer_path(copy).is_file()
+    assert np.abs(SceneGraph.open(copy).get_mesh("cup").points).max() == 0.0
+    assert SceneGraph.open(copy).stage.GetPrimAtPath("/World/Objects/cup").GetAttribute("holo:test:spin").Get(5) == 5
     # A layer with nothing large keeps no crate file; a flattened copy is one self-contained file.
     small = SceneGraph.create(tmp_path / "small.usda")
     small.add_object("cup", instance_id=1)

@@ -116,7 +116,12 @@ def test_page_serves_the_scene_and_a_client_moves_saves_and_pushes(example_copy:
         np.testing.assert_allclose(SceneGraph.open(session.edit_path).get_pose("box").translation, target, atol=1e-6)
 
         client.click("Push selected")
+        client.receive(lambda ms: any("building the model" in s for s in client.status()))
+        client.choose("Object", "table")  # while it runs: the push stays the box's, and edits wait for it
+        client.click("Save edits")
+        client.receive(lambda ms: any("a simulation is running" in s for s in client.status()))
         client.receive(lambda ms: any("push of box" in s for s in client.status()), timeout=600)
+        assert session.motion.pushed == "box" and server.selected == "table"
         moves = [np.array(m["position"]) for m in client.of_type("SetPositionMessage") if m["name"] == "/nodes/box"]
         path = session.motion.poses["box"]
         # streamed while it was computed: the page saw more than one simulated state of the box (the server merges
@@ -180,7 +185,6 @@ def test_bench_view_times_the_page_and_a_drop(example_copy: Path, tmp_path: Path
     result = json.loads((tmp_path / "bench" / "bench_view.json").read_text())
     assert result["nodes"] == 5 and result["nodes_with_splats"] == 4 and result["splats"] == 8000
     assert 0 < result["server_ready_s"] <= result["first_splats_s"] <= result["page_complete_s"]
-    assert result["first_frame_target_met"] == (result["page_complete_s"] <= result["first_frame_target_s"])
     drop = result["drop"]
     assert drop["simulated_s"] == pytest.approx(0.25, abs=0.01) and drop["objects"] == 4 and drop["wall_s"] > 0
     assert drop["furthest_moved_cm"] < 2.0  # the example scene stands

@@ -44,8 +44,9 @@ class AppearanceConfig:
     seed: int = 0
     """Seed of the splat sampling."""
     texture: bool = True
-    """Also bake the splats' colour into a texture atlas per mesh (``<node>.png`` beside the layer), which tools
-    that read no splats show instead of the per-point colour (which stays as their fallback)."""
+    """Also bake the splats' colour into a texture atlas per mesh (``assets/<layer>/<node>.png`` beside the
+    layer), which tools that read no splats show instead of the per-point colour (which stays as their fallback;
+    a mesh xatlas cannot pack into one ``texture_max_size`` atlas keeps only that)."""
     texture_max_size: int = 1024
     """Longest side of a node's texture, texels (its texels are half the splats' spacing, larger on big meshes)."""
 
@@ -131,7 +132,8 @@ def fit_appearance(scene: SceneGraph, frames: object, config: AppearanceConfig |
             scene.set_surface_color(name, vertex_colors(meshes[name], splats))
             if config.texture:
                 texture = bake_texture(meshes[name], splats, max_size=config.texture_max_size)
-                scene.set_surface_texture(name, texture.st, texture.image)
+                if texture is not None:  # else no atlas fits: the per-point colours alone
+                    scene.set_surface_texture(name, texture.st, texture.image)
     written = scene.save()
     return AppearanceResult(scene=scene, layer=written, fit=result,
                             counts={k: len(v) for k, v in result.splats.items()}, budgets=budgets)  # fmt: skip

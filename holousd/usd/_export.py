@@ -37,7 +37,28 @@ def export_sim(stage: Usd.Stage, out: str | os.PathLike[str]) -> Path:
     dropped += [Sdf.Path(p) for p in _DROPPED_SCOPES if sim.GetPrimAtPath(p)]
     for path in sorted(set(dropped), key=lambda p: p.pathElementCount, reverse=True):
         sim.RemovePrim(path)
+    _untextured(sim)
     return save_layer(flat, out, split=False)
+
+
+def _untextured(stage: Usd.Stage) -> None:
+    """Drop the baked textures (image files beside the scene: a sim file must stand alone): each visual
+    material's diffuse colour reads the mesh's ``displayColor`` again, and the meshes lose their ``st``."""
+    from pxr import UsdShade
+
+    prims = list(stage.Traverse())
+    for prim in prims:
+        if prim.IsA(UsdGeom.Mesh):
+            UsdGeom.PrimvarsAPI(prim).RemovePrimvar("st")
+    for material in [p for p in prims if p.IsA(UsdShade.Material)]:
+        surface, colour = material.GetChild("Surface"), material.GetChild("DisplayColor")
+        if not material.GetChild("Texture"):
+            continue
+        if surface and colour:
+            diffuse = UsdShade.Shader(surface).GetInput("diffuseColor")
+            diffuse.ConnectToSource(UsdShade.Shader(colour).GetOutput("result"))
+        for shader in ("Texture", "TexCoords"):
+            stage.RemovePrim(material.GetPath().AppendChild(shader))
 
 
 def _flattened(stage: Usd.Stage, kind: str) -> tuple[Sdf.Layer, Usd.Stage]:

@@ -120,6 +120,8 @@ def _attribute_paths(layer: Sdf.Layer) -> list[Sdf.Path]:
 
 
 def _heavy(layer: Sdf.Layer, spec: Sdf.AttributeSpec) -> bool:
+    if spec.typeName in (Sdf.ValueTypeNames.Asset, Sdf.ValueTypeNames.AssetArray):
+        return False  # asset paths resolve against the layer that holds them: they stay in the text layer
     if layer.GetNumTimeSamplesForPath(spec.path) > SAMPLE_LIMIT:
         return True
     if not spec.typeName.isArray:
@@ -138,14 +140,21 @@ def _split(layer: Sdf.Layer, target: Path) -> tuple[Sdf.Layer, Sdf.Layer | None]
     data_file = data_layer_path(target)
     text = Sdf.Layer.CreateAnonymous(".usda")
     text.TransferContent(layer)
-    ours = [sub for sub in text.subLayerPaths if Path(os.path.normpath(target.parent / sub)) == data_file]
-    if ours:
-        old = Sdf.Layer.FindOrOpen(str(data_file)) if data_file.is_file() else None
+    source = layer_path(layer)  # where the layer was read from: its sublayer paths are relative to that folder
+    own = {data_file} | ({data_layer_path(source.absolute())} if source is not None else set())
+    base = (source.absolute() if source is not None else target).parent
+    for sub in list(text.subLayerPaths):
+        found = Path(os.path.normpath(base / sub))
+        if found not in own:
+            continue
+        old = Sdf.Layer.FindOrOpen(str(found)) if found.is_file() else None
+        if old is None and sub in layer.subLayerPaths:  # a data file the layer sublayers must be there to fold
+            raise SceneError(f"{source or target}: its data file {found} is missing; restore it (assets/ folder) "
+                             "before saving the layer")  # fmt: skip
         for path in _attribute_paths(old) if old is not None else []:
             if text.GetPrimAtPath(path.GetPrimPath()) and not text.GetAttributeAtPath(path):
                 Sdf.CopySpec(old, path, text, path)
-        for sub in ours:
-            text.subLayerPaths.remove(sub)
+        text.subLayerPaths.remove(sub)
     data = Sdf.Layer.CreateAnonymous(".usdc")
     # Time codes per second must match, or USD rescales the crate file's time samples to the text layer's rate.
     if text.HasTimeCodesPerSecond():
@@ -183,21 +192,29 @@ def save_layer(layer: Sdf.Layer, path: str | os.PathLike[str] | None = None, *, 
     if split and target.suffix == ".usda":
         out, data = _split(layer, target)
     data_file = data_layer_path(target)
-    if data is not None:
-        _export(data, data_file)
+    if data is not None:  # both files written in full before either replaces what was there
+        with atomic_path(data_file) as data_tmp:
+            _export(data, data_file, data_tmp)
+            _export(out, target)
         loaded = Sdf.Layer.Find(str(data_file))
         if loaded is not None:
             loaded.Reload(force=True)  # a stage holding the old data file sees the new one
+        return target
     _export(out, target)
-    if data is None and split and target.suffix == ".usda" and data_file.is_file():
+    if split and target.suffix == ".usda" and data_file.is_file():
         data_file.unlink()  # this layer has no large arrays any more
     return target
 
 
-def _export(layer: Sdf.Layer, target: Path) -> None:
-    with atomic_path(target) as tmp:
+def _export(layer: Sdf.Layer, target: Path, tmp: Path | None = None) -> None:
+    """Write ``layer`` for ``target``: to ``tmp`` (the caller renames it), else to a temporary file renamed over
+    ``target``."""
+    if tmp is not None:
         if not layer.Export(str(tmp)):
             raise SceneError(f"{target}: USD failed to write the layer; check disk space and permissions")
+        return
+    with atomic_path(target) as temp:
+        _export(layer, target, temp)
 
 
 def open_layer_stack(path: Path, seen: frozenset[Path] = frozenset()) -> list[Sdf.Layer]:

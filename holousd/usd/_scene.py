@@ -813,17 +813,26 @@ class SceneGraph:
         geom = self._prim(name).GetChild("Geom")
         primvar = UsdGeom.PrimvarsAPI(geom).GetPrimvar("st") if geom else None
         material = UsdShade.MaterialBindingAPI(geom).GetDirectBinding().GetMaterial() if geom else None
-        texture = self._stage.GetPrimAtPath(material.GetPath().AppendChild("Texture")) if material else None
-        if not primvar or not primvar.HasValue() or not texture:
-            return None
+        surface = UsdShade.Shader(self._stage.GetPrimAtPath(material.GetPath().AppendChild("Surface"))) \
+            if material else None  # fmt: skip
+        diffuse = surface.GetInput("diffuseColor") if surface else None
+        sources = diffuse.GetConnectedSources()[0] if diffuse else []
+        texture = sources[0].source.GetPrim() if len(sources) == 1 else None
+        if not primvar or not primvar.HasValue() or not texture or not texture.HasAttribute("inputs:file"):
+            return None  # not coloured by a texture (a later layer may have reconnected the colour)
         asset = texture.GetAttribute("inputs:file").Get()
         where = f"{self._where()}:{texture.GetPath()}"
+        st = np.asarray(primvar.ComputeFlattened(), dtype=np.float64)
+        counts = geom.GetAttribute("faceVertexCounts").Get()
+        if st.shape != (3 * len(counts or []), 2):
+            raise SceneError(f"{where}: primvars:st has {len(st)} coordinates for {len(counts or [])} triangles "
+                             "(3 each); re-run the appearance stage")  # fmt: skip
         if asset is None or not asset.resolvedPath:
             raise SceneError(f"{where}: its texture file {asset.path if asset else ''!r} is missing; restore the "
                              "assets/ folder or re-run the appearance stage")  # fmt: skip
         with Image.open(asset.resolvedPath) as img:
             image = np.asarray(img.convert("RGB"))
-        return np.asarray(primvar.ComputeFlattened(), dtype=np.float64).reshape(-1, 3, 2), image
+        return st.reshape(-1, 3, 2), image
 
     def get_surface_color(self, name: str) -> np.ndarray | None:
         """[P, 3] linear RGB per point of the node's Geom (``primvars:displayColor``), or None when not coloured."""

@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import json
 import os
+import queue
 import re
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -18,6 +20,8 @@ __all__ = ["FIRST_FRAME_TARGET_S", "bench_view"]
 
 FIRST_FRAME_TARGET_S = 5.0
 """The target: every node's splats at a client at most this long after ``holousd view`` starts, s."""
+STARTUP_TIMEOUT_S = 120.0
+"""How long ``holousd view`` may take to print its address before the benchmark gives up, s."""
 
 
 def bench_view(scene: str | os.PathLike[str], out: str | os.PathLike[str], *, seconds: float = 1.0,
@@ -45,15 +49,31 @@ def bench_view(scene: str | os.PathLike[str], out: str | os.PathLike[str], *, se
     process = subprocess.Popen([sys.executable, "-m", "holousd.cli", "view", str(scene), "--port", "0",
                                 "--serve-for", "300"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                                text=True)  # fmt: skip
-    try:
-        port = None
+    lines: queue.Queue[str | None] = queue.Queue()
+
+    def drain() -> None:  # all of the child's stderr, so that it never blocks on a full pipe
         for line in process.stderr:  # type: ignore[union-attr]
-            found = re.search(r"open http://[^:\s]+:(\d+)", line)
-            if found:
-                port = int(found.group(1))
+            lines.put(line)
+        lines.put(None)
+
+    threading.Thread(target=drain, daemon=True).start()
+    try:
+        port, said = None, []
+        deadline = time.perf_counter() + STARTUP_TIMEOUT_S
+        while port is None and time.perf_counter() < deadline:
+            try:
+                line = lines.get(timeout=max(0.0, deadline - time.perf_counter()))
+            except queue.Empty:
                 break
+            if line is None:
+                raise HolousdError(f"{scene}: holousd view stopped before serving the page (exit {process.wait()}): "
+                                   + " / ".join(said[-3:]))  # fmt: skip
+            said.append(line.strip())
+            found = re.search(r"open http://[^:\s]+:(\d+)", line)
+            port = int(found.group(1)) if found else None
         if port is None:
-            raise HolousdError(f"{scene}: holousd view stopped before serving the page (exit {process.wait()})")
+            raise HolousdError(f"{scene}: holousd view printed no address within {STARTUP_TIMEOUT_S:.0f} s; run "
+                               f"'holousd view {scene}' to see why")  # fmt: skip
         ready = time.perf_counter() - start
         client = PageClient(port)
         client.camera([3.0, 0.0, 1.5], [0.0, 0.0, 0.5])
@@ -73,7 +93,8 @@ def bench_view(scene: str | os.PathLike[str], out: str | os.PathLike[str], *, se
     finally:
         process.terminate()
         process.wait(timeout=30)
-    say(f"page: server ready {ready:.2f} s, first splats {first:.2f} s, whole page {complete:.2f} s")
+    splats_text = f"first splats {first:.2f} s" if first is not None else "no splats"
+    say(f"page: server ready {ready:.2f} s, {splats_text}, whole page {complete:.2f} s")
     t0 = time.perf_counter()
     motion = session.simulate("drop")
     wall = time.perf_counter() - t0

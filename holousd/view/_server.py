@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import threading
 import time
+import traceback
 from collections.abc import Callable
 from typing import Any
 
@@ -161,10 +162,17 @@ class ViewServer:
         self._log(line)
 
     def _guarded(self, action: Callable[[], object]) -> None:
+        """Run a button's action; while a simulation runs the scene is not edited (Stop first)."""
+        if self._lock.locked():
+            self._say("a simulation is running: wait for it or press Stop")
+            return
         try:
             action()
         except HolousdError as exc:
             self._say(f"error: {exc}")
+        except Exception as exc:  # noqa: BLE001 - the page must say something went wrong, not go quiet
+            self._log(traceback.format_exc())
+            self._say(f"internal error ({type(exc).__name__}: {exc}); the traceback is in the terminal")
 
     # ------------------------------------------------------------------ actions (also the Python API)
     def select(self, name: str | None) -> None:
@@ -173,6 +181,8 @@ class ViewServer:
             self._gizmo.remove()
             self._gizmo = None
         self.selected = name
+        if self._lock.locked():  # the motion streams on; no gizmo to move things with meanwhile
+            return
         self._show_edited()  # back from a played motion to the edited poses
         if self._pick.value != (name or "(none)"):
             self._pick.value = name or "(none)"
@@ -192,7 +202,9 @@ class ViewServer:
                   + (f"{node.mass_kg:.2f} kg" if node.mass_kg else "static"))  # fmt: skip
 
     def move(self, name: str, pose: Pose) -> None:
-        """Move an object (as the gizmo does)."""
+        """Move an object (as the gizmo does); not while a simulation runs."""
+        if self._lock.locked():
+            return
         self.session.move(name, pose)
         self._place_all({name: pose})
 
@@ -215,11 +227,11 @@ class ViewServer:
             self._say("a simulation is running: wait for it or press Stop")
             return None
         self._stop.clear()
-        thread = threading.Thread(target=self._simulate, args=(kind, direction), daemon=True)
+        thread = threading.Thread(target=self._simulate, args=(kind, self.selected, direction), daemon=True)
         thread.start()
         return thread
 
-    def _simulate(self, kind: str, direction: np.ndarray | None) -> None:
+    def _simulate(self, kind: str, selected: str | None, direction: np.ndarray | None) -> None:
         try:
             self._say(f"{kind}: building the model ...")
             if self._gizmo is not None:  # the object is about to move away from it
@@ -233,13 +245,17 @@ class ViewServer:
             def progress(f: float) -> None:
                 self._progress.value = 100.0 * f
 
-            motion = self.session.simulate(kind, self.selected, direction, on_step=on_step, progress=progress)
+            motion = self.session.simulate(kind, selected, direction, on_step=on_step, progress=progress)
             self._progress.value = 100.0
             self._say(_motion_text(motion) + ". Keep final poses to edit from there; pick an object to return to "
                       "the edited poses")
         except HolousdError as exc:
             self._show_edited()
             self._say(f"error: {exc}")
+        except Exception as exc:  # noqa: BLE001 - a worker thread's error would otherwise leave the page waiting
+            self._log(traceback.format_exc())
+            self._show_edited()
+            self._say(f"{kind} failed: internal error ({type(exc).__name__}: {exc}); the traceback is in the terminal")
         finally:
             self._lock.release()
 
