@@ -562,16 +562,17 @@ def _concatenated(meshes: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarr
 def _top_under(child: _Body, support: tuple[np.ndarray, np.ndarray], start: float) -> float:
     """The highest point of the surface of ``support`` (a world mesh) straight under ``child``'s footprint (its
     outline seen from above), hit by rays cast down from height ``start``; -inf when none is hit."""
-    from scipy.spatial import Delaunay, QhullError
+    from scipy.spatial import ConvexHull, QhullError
 
     c = child.world()[0]
     lo, hi = c[:, :2].min(axis=0), c[:, :2].max(axis=0)
     xs, ys = np.meshgrid(np.linspace(lo[0], hi[0], 11)[1:-1], np.linspace(lo[1], hi[1], 11)[1:-1])
     grid = np.column_stack([xs.ravel(), ys.ravel()])
-    try:
-        grid = grid[Delaunay(c[:, :2]).find_simplex(grid) >= 0]  # inside the outline (not a round base's corners)
+    try:  # inside the outline (not a round base's corners): its convex hull's edge lines, n . x + d <= 0 inside
+        edges = ConvexHull(c[:, :2]).equations  # (a Delaunay point location took seconds on a cut mesh's points)
     except QhullError:
         return -np.inf
+    grid = grid[np.all(grid @ edges[:, :2].T + edges[:, 2] <= 1e-12, axis=1)]
     if len(grid) == 0:
         return -np.inf
     hits = _first_hits_down(support, np.column_stack([grid, np.full(len(grid), start)]))[0]
