@@ -179,6 +179,7 @@ def test_eval_of_reconstruction_reports_every_key(recon: tuple[Path, _pipeline.P
     assert page.count("data:image/png;base64,") >= 4 + 1 + 1 + 1 + 2
     assert "no render" not in page and "no mesh view" not in page and "Speed against accuracy" in page
     assert "mug_1" in page and "Stable%" in page
+    assert "hard fast (hard_ablation)" in page  # the older run of a preset is told apart from the current one
 
 
 def test_records_are_read_back(recon: tuple[Path, _pipeline.PipelineResult]) -> None:

@@ -29,7 +29,8 @@ from holousd._sampling import evenly_spaced
 __all__ = ["DemoConfig", "bar_chart", "mesh_view", "reference_runs", "run_demo", "write_report"]
 
 REFERENCE_DIR = Path(__file__).parent / "reference"
-"""Committed ``holousd bench`` results (``bench.json`` of the bench suite, ``hard.json`` of the hard suite)."""
+"""Committed ``holousd bench`` results (``bench.json`` of the bench suite, ``hard.json`` of the hard suite, and the
+older runs the README keeps beside them)."""
 
 
 @dataclass(kw_only=True)
@@ -137,15 +138,19 @@ def mesh_view(scene: Any, camera: Any) -> np.ndarray:
 
 
 def reference_runs() -> list[dict[str, Any]]:
-    """The committed reference ``holousd bench`` runs, preset labelled ``<suite> <preset>`` ([] when absent)."""
+    """The committed reference ``holousd bench`` runs, preset labelled ``<suite> <preset>``, with the file's name
+    after it when that is not the suite's own (``hard fast (hard_ablation)``: an older run of the same preset)
+    ([] when absent)."""
     runs = []
     for path in sorted(REFERENCE_DIR.glob("*.json")):
         try:
             payload = json.loads(path.read_text())
         except (OSError, json.JSONDecodeError):
             continue
+        suite = payload.get("suite", path.stem)
+        which = "" if path.stem in (suite, f"{suite}_default") else f" ({path.stem})"
         for r in payload.get("runs", []):
-            runs.append({**r, "preset": f"{payload.get('suite', path.stem)} {r['preset']}"})
+            runs.append({**r, "preset": f"{suite} {r['preset']}{which}"})
     return runs
 
 
