@@ -360,6 +360,12 @@ def test_large_arrays_and_long_time_samples_go_to_a_crate_file_under_the_text_la
     shutil.copytree(tmp_path, tmp_path.parent / f"{tmp_path.name}_moved")  # a layer no process has open yet
     read = Sdf.Layer.FindOrOpen(str(tmp_path.parent / f"{tmp_path.name}_moved" / "scene.usda"))
     assert list(read.subLayerPaths) == ["./assets/scene/arrays.usdc"]
+    moved = tmp_path.parent / f"{tmp_path.name}_moved"  # a layer whose data file went missing is not saved without it
+    (moved / "assets" / "scene" / "arrays.usdc").rename(moved / "arrays_elsewhere.usdc")
+    with pytest.raises(SceneError, match="data file .* is missing"):
+        holousd.usd.save_layer(read, tmp_path / "copy.usda")
+    (moved / "arrays_elsewhere.usdc").rename(moved / "assets" / "scene" / "arrays.usdc")
+    assert not (tmp_path / "copy.usda").exists()
     copy = holousd.usd.save_layer(read, tmp_path / "copy.usda")
     assert data_layer_path(copy).is_file()
     assert np.abs(SceneGraph.open(copy).get_mesh("cup").points).max() == 0.0

@@ -148,7 +148,7 @@ def _split(layer: Sdf.Layer, target: Path) -> tuple[Sdf.Layer, Sdf.Layer | None]
         if found not in own:
             continue
         old = Sdf.Layer.FindOrOpen(str(found)) if found.is_file() else None
-        if old is None and sub in layer.subLayerPaths:  # a data file the layer sublayers must be there to fold
+        if old is None:  # a data file the layer sublayers must be there to fold
             raise SceneError(f"{source or target}: its data file {found} is missing; restore it (assets/ folder) "
                              "before saving the layer")  # fmt: skip
         for path in _attribute_paths(old) if old is not None else []:
