@@ -71,7 +71,7 @@ def bake_texture(mesh: MeshData, splats: GaussianSplats, *, texel_m: float | Non
                  padding: int = 2) -> Texture | None:  # fmt: skip
     """Unwrap ``mesh`` into a UV atlas and colour every texel from the splats at the surface point it covers;
     None when xatlas cannot pack the mesh into one atlas of at most ``max_size`` texels a side (its texel grown
-    up to 30 times) or changes its faces (the per-point colours then stay the mesh's only colour).
+    up to about 28 times) or changes its faces (the per-point colours then stay the mesh's only colour).
 
     Args:
         mesh: The node's rendered mesh (object frame); it is not changed.

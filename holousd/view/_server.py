@@ -171,8 +171,12 @@ class ViewServer:
         except HolousdError as exc:
             self._say(f"error: {exc}")
         except Exception as exc:  # noqa: BLE001 - the page must say something went wrong, not go quiet
-            self._log(traceback.format_exc())
-            self._say(f"internal error ({type(exc).__name__}: {exc}); the traceback is in the terminal")
+            self._internal_error(exc)
+
+    def _internal_error(self, exc: Exception, what: str = "") -> None:
+        """An unexpected error: its traceback to the terminal, one line on the page."""
+        self._log(traceback.format_exc())
+        self._say(f"{what}internal error ({type(exc).__name__}: {exc}); the traceback is in the terminal")
 
     # ------------------------------------------------------------------ actions (also the Python API)
     def select(self, name: str | None) -> None:
@@ -253,9 +257,8 @@ class ViewServer:
             self._show_edited()
             self._say(f"error: {exc}")
         except Exception as exc:  # noqa: BLE001 - a worker thread's error would otherwise leave the page waiting
-            self._log(traceback.format_exc())
             self._show_edited()
-            self._say(f"{kind} failed: internal error ({type(exc).__name__}: {exc}); the traceback is in the terminal")
+            self._internal_error(exc, f"{kind} failed: ")
         finally:
             self._lock.release()
 
