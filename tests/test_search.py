@@ -53,6 +53,29 @@ def test_static_check_stands_on_a_floor_and_falls_off_an_edge_a_ramp_or_into_the
         assert on.tilt_deg == pytest.approx(degrees, abs=1.5)
 
 
+def test_static_check_sees_a_bumpy_top_as_the_physics_set_up_leaves_it_and_a_ramp_still_throws() -> None:
+    from holousd.stages._physics_one import PhysicsSetupConfig
+
+    def ramp(degrees: float, size: float) -> tuple[np.ndarray, np.ndarray]:
+        m = trimesh.creation.box(extents=(size, size, 0.1))
+        m.apply_transform(trimesh.transformations.rotation_matrix(np.radians(degrees), (0, 1, 0)))
+        m.apply_translation((0.0, 0.0, -0.05 / np.cos(np.radians(degrees))))  # its top through the origin
+        return np.asarray(m.vertices), np.asarray(m.faces)
+
+    flatten = _search.SearchConfig().support_flatten
+    assert flatten == PhysicsSetupConfig().top_depth  # the search predicts the set-up's edit, not another one
+    cube = _box((-0.01, -0.01, 0.0), (0.01, 0.01, 0.02))
+    facet = ramp(35, 0.05)  # a 1.4 cm high facet of a fitted top under a 2 cm cube: cut flat by the set-up
+    assert not static_stability(cube, facet).stands
+    on = static_stability(cube, facet, flatten=flatten)
+    assert on.stands and on.tilt_deg == pytest.approx(0.0, abs=1e-6), on
+    # negative controls: a 20 cm block on a 35 or 40 degree ramp spans 11-17 cm of it: the set-up flattens its
+    # top 1.5 cm only, and the block still slides off
+    block = _box((-0.1, -0.05, 0.0), (0.1, 0.05, 0.1))
+    for degrees in (35, 40):
+        assert not static_stability(block, ramp(degrees, 1.0), flatten=flatten).stands, degrees
+    assert static_stability(block, ramp(10, 1.0), flatten=flatten).stands
+
 def test_zbuffer_is_a_ray_cast_through_every_pixel_centre() -> None:
     sphere = trimesh.creation.icosphere(subdivisions=3, radius=0.5)
     sphere.apply_translation((0.1, -0.05, 2.0))

@@ -76,7 +76,7 @@ def _slope(points: np.ndarray) -> float:
 
 def static_stability(body: Mesh, support: Mesh | float | None, *, friction: float = 0.5,
                      contact_band: float = 0.02, max_gap: float = 0.05, ray_start: float = 0.02,
-                     samples: int = 1500, seed: int = 0) -> StaticVerdict:  # fmt: skip
+                     samples: int = 1500, seed: int = 0, flatten: float = 0.0) -> StaticVerdict:  # fmt: skip
     """Quasi-static verdict of a body (world mesh, closed) resting on ``support`` (a world mesh, a floor height,
     or None: nothing under it).
 
@@ -86,7 +86,13 @@ def static_stability(body: Mesh, support: Mesh | float | None, *, friction: floa
     base and the top under it flat to about that depth (a fitted underside is rounded and its legs end at
     different heights); a smallest drop beyond ``max_gap`` is no contact. The slope is that of the plane
     through the support's surface under the contacts.
-    The centre of mass is the mesh's (uniform density)."""
+    The centre of mass is the mesh's (uniform density).
+
+    ``flatten`` (metres, support meshes only) checks the body on the support as the physics set-up will leave it:
+    the support's surface under the body is taken flat (horizontal) at its lowest point there (its 10th
+    percentile) but no deeper than ``flatten`` below its highest, and its dents filled up to that height from at
+    most ``flatten`` below it, as the one-geometry set-up's ``top_depth`` cuts a fitted top's bumps and fills its
+    dents under what rests on it; what lies deeper (an edge, a gap between boards, most of a long ramp) stays."""
     from holousd.geometry._contact import area_samples, mass_properties
 
     points, faces = np.asarray(body[0], float), np.asarray(body[1], np.int64)
@@ -120,6 +126,12 @@ def static_stability(body: Mesh, support: Mesh | float | None, *, friction: floa
             surface_z[index] = np.asarray(where, float)[:, 2]
             drop[index] = low[index, 2] - surface_z[index]
         hit = np.isfinite(drop)
+        if flatten > 0.0 and hit.any():
+            highest = float(surface_z[hit].max())
+            plane = max(float(np.percentile(surface_z[hit], 10)), highest - flatten)
+            patch = hit & (surface_z >= plane - flatten)  # bumps above the plane cut, dents below it filled
+            surface_z[patch] = plane
+            drop[patch] = low[patch, 2] - plane
     if not hit.any():
         return none
     smallest = float(drop[hit].min())
