@@ -53,7 +53,9 @@ def test_static_check_stands_on_a_floor_and_falls_off_an_edge_a_ramp_or_into_the
         assert on.tilt_deg == pytest.approx(degrees, abs=1.5)
 
 
-def test_static_check_sees_a_bumpy_top_as_the_physics_set_up_leaves_it_and_a_ramp_still_throws() -> None:
+def test_a_revisit_waits_for_a_child_the_set_up_cannot_stand_and_a_ramp_still_throws() -> None:
+    """The revisit replaces a parent's shape only when no child candidate stands on the parent's top as the
+    set-up leaves it (``flatten``: cut flat under the child); E_stable stays measured on the fitted top."""
     from holousd.stages._physics_one import PhysicsSetupConfig
 
     def ramp(degrees: float, size: float) -> tuple[np.ndarray, np.ndarray]:
@@ -69,6 +71,11 @@ def test_static_check_sees_a_bumpy_top_as_the_physics_set_up_leaves_it_and_a_ram
     assert not static_stability(cube, facet).stands
     on = static_stability(cube, facet, flatten=flatten)
     assert on.stands and on.tilt_deg == pytest.approx(0.0, abs=1e-6), on
+    scorer = _search._Scorer(_search.SearchConfig(), 0.0)
+    assert scorer.physics(_mesh(*cube), "top", _mesh(*facet), {})[0] > 0  # E_stable: the fitted facet tips it
+    assert scorer.stands_once_set_up(_mesh(*cube), "top", _mesh(*facet))  # no revisit: the set-up stands it
+    past = _mesh(*_box((0.0, 0.0, 0.30), (0.2, 0.1, 0.4)))  # centre of mass 8 cm past its support's end
+    assert not scorer.stands_once_set_up(past, "table", _mesh(*_box((-0.3, 0.0, 0.0), (0.02, 0.1, 0.30))))
     # negative controls: a 20 cm block on a 35 or 40 degree ramp spans 11-17 cm of it: the set-up flattens its
     # top 1.5 cm only, and the block still slides off
     block = _box((-0.1, -0.05, 0.0), (0.1, 0.05, 0.1))

@@ -26,7 +26,8 @@ Modes (``mode``; the ablation rows of ``holousd bench --search``):
 
 - ``tree``: breadth-first from the room along the support tree (:func:`holousd.graph.infer_relations` on the
   fitted meshes); each object is scored on its parent's chosen shape and among the neighbours already placed.
-  When no candidate of a child stands, the parent's other candidates are tried in order of their own total;
+  When no candidate of a child stands, even on the parent's top as the physics set-up will leave it (cut flat
+  under the child, ``support_flatten``), the parent's other candidates are tried in order of their own total;
   the first under which a child candidate stands and every child already placed on the parent still stands
   replaces the parent's choice.
 - ``ground``: each object checked against the room only (the PhyRecon-like row): objects on the room are scored
@@ -117,12 +118,13 @@ class SearchConfig:
     friction: float = 0.5
     """Friction coefficient of the quasi-static check (the stability protocol's)."""
     support_flatten: float = 0.015
-    """E_stable checks a candidate on its parent as the physics set-up will leave the parent's top: flat under
-    the candidate where it lies within this of its highest point there, metres (the set-up's ``top_depth``;
-    :func:`holousd.physics.static_stability`'s ``flatten``). Checked on the fitted bumps instead, the demo's bowl
-    (its centre of mass 1 mm outside the contacts on an 18 deg facet of the shelf's board) did not stand on the
-    fitted shelf, and the revisit swapped the shelf for its visual hull, 21 cm wider into the corner nobody saw
-    (the shelf's F1 94 -> 73)."""
+    """A revisit replaces a parent's shape only when no candidate of the child stands on the parent as the
+    physics set-up will leave its top: flat under the child where it lies within this of its highest point
+    there, metres (the set-up's ``top_depth``; :func:`holousd.physics.static_stability`'s ``flatten``); the set-up
+    makes a child stand that the fitted bumps tip. Without it, the demo's bowl (its centre of mass 1 mm outside
+    its contacts on an 18 deg facet of the shelf's board) had the shelf swapped for its visual hull, 21 cm wider
+    into the corner nobody saw (the shelf's F1 94 -> 73). E_stable itself stays measured on the fitted shape:
+    scored on the flattened top, hard/fast lost four objects to 5-10 deg tilts (98 -> 90% stable)."""
     provenance: str = "s2_search"
     """Writer name recorded on the nodes the stage changes."""
     progress: bool = False
@@ -227,8 +229,18 @@ class _Scorer:
         else:
             support = None if parent_mesh is None else (parent_mesh.points, parent_mesh.faces)
         verdict = static_stability(self._body(world, parent), support, friction=self.config.friction,
-                                   seed=self.config.seed, flatten=self.config.support_flatten)  # fmt: skip
+                                   seed=self.config.seed)  # fmt: skip
         return verdict.energy, 100.0 * abs(verdict.gap_m) if math.isfinite(verdict.gap_m) else 5.0
+
+    def stands_once_set_up(self, world: MeshData, parent: str, parent_mesh: MeshData | None) -> bool:
+        """Whether a world mesh stands on its parent's top as the physics set-up will leave it (flat under it)."""
+        from holousd.physics._static import static_stability
+
+        if parent == BACKGROUND or parent_mesh is None:
+            return False  # the floor is flat already: nothing the set-up does changes the verdict
+        return static_stability(self._body(world, parent), (parent_mesh.points, parent_mesh.faces),
+                                friction=self.config.friction, seed=self.config.seed,
+                                flatten=self.config.support_flatten).stands  # fmt: skip
 
     def penetration(self, world: MeshData, parent: str, neighbours: dict[str, MeshData]) -> float:
         """Intersection volume, cm^3, of a world mesh with its parent above its base band and the neighbours."""
@@ -340,7 +352,10 @@ def search(scene: SceneGraph, obs, config: SearchConfig | None = None,  # noqa: 
                     continue
                 chosen = _pick(scores)
                 choice = ObjectChoice(name=name, parent=parent, scores=scores, chosen=chosen, wall_s=0.0)
-                if config.mode == "tree" and config.revisit and scores[chosen].stable > 0 and parent in by_name:
+                if (config.mode == "tree" and config.revisit and scores[chosen].stable > 0 and parent in by_name
+                        and not any(scorer.stands_once_set_up(world, parent, placed.get(parent))
+                                    for (_, world), sc in zip(found, scores, strict=True)
+                                    if math.isfinite(sc.total))):  # fmt: skip
                     _revisit(name, choice, found, by_name[parent], candidates[parent], relations, placed, scorer)
                 placed[name] = found[choice.chosen][1]
                 candidates[name] = found
