@@ -223,6 +223,46 @@ def test_instance_missing_from_some_frames(tmp_path: Path) -> None:
     assert np.linalg.norm((pts.min(0) + pts.max(0)) / 2 - np.asarray(SPHERE.centre)) < 0.03
 
 
+@dataclass
+class TurnedBox:
+    """A box turned about z by ``degrees`` around its centre."""
+
+    centre: tuple[float, float, float]
+    size: tuple[float, float, float]
+    degrees: float
+
+    def hit(self, o: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        a = np.radians(self.degrees)
+        rot = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+        half = np.asarray(self.size) / 2
+        t, n = Box(tuple(-half), tuple(half)).hit((o - np.asarray(self.centre)) @ rot, d @ rot)
+        return t, n @ rot.T
+
+
+def test_fit_works_in_the_room_frame_when_the_capture_is_turned(tmp_path: Path) -> None:
+    # a tracker's world frame runs at any angle to the room: two boxes square to each other, turned 30 deg
+    boxes = [TurnedBox((0.0, 0.0, 0.1), (0.4, 0.16, 0.2), 30.0), TurnedBox((0.05, -0.3, 0.06), (0.2, 0.1, 0.12), 30.0)]
+    obs = render_capture(boxes, ring_poses((0.0, -0.1, 0.1), radius=1.3), [(0.8, 0.5, 0.2), (0.2, 0.6, 0.8)])
+    turned = _fit.fit(_observe.run(obs, tmp_path / "room"), obs, TEST_CONFIG)
+    assert turned.yaw_deg == pytest.approx(30.0, abs=1.0)
+    world = _fit.fit(_observe.run(obs, tmp_path / "world"), obs, replace(TEST_CONFIG, align_room=False))
+    assert world.yaw_deg == 0.0
+    for name, box in zip(("object_1", "object_2"), boxes, strict=True):
+        # in the room's frame the mesh is the box square to its own axes; in the capture's it is the turned box's
+        # axis-aligned bounds (negative control: the alignment is what makes the object frame the box's)
+        pose = turned.scene.get_pose(name)
+        assert np.degrees(2 * np.arctan2(pose.orientation[2], pose.orientation[3])) == pytest.approx(30.0, abs=1.0)
+        size = np.ptp(turned.scene.get_mesh(name).points, axis=0)
+        np.testing.assert_allclose(size, box.size, atol=0.04)
+        loose = np.ptp(world.scene.get_mesh(name).points, axis=0)
+        assert loose[0] > box.size[0] * np.cos(np.radians(30)) + box.size[1] * np.sin(np.radians(30)) - 0.04
+        # the scene stays where the cameras saw it: the same world bounds either way
+        a, _ = _world_mesh(turned.scene, name)
+        b, _ = _world_mesh(world.scene, name)
+        np.testing.assert_allclose(a.min(0), b.min(0), atol=0.03)
+        np.testing.assert_allclose(a.max(0), b.max(0), atol=0.03)
+
+
 def test_bad_inputs_fail_with_clear_messages(tmp_path: Path) -> None:
     poses = ring_poses((0.0, 0.0, 0.1))[:3]
     obs = render_capture([SPHERE], poses, [(0.9, 0.2, 0.2)])

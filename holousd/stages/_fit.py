@@ -23,7 +23,16 @@ Pipeline per capture:
    value the initialisation gave them.
 6. Overlaps left between instances are split at the mid-surface, grids are re-distanced, meshed (marching
    cubes, largest component, closed by positive padding, face budget from the object's size) and written in
-   object coordinates (origin at the bottom centre of the mesh's bounding box, pose = translation).
+   object coordinates (origin at the bottom centre of the mesh's bounding box, pose = translation, turned
+   about z by the room's yaw when the fit worked in the room's frame).
+
+The room's frame: a tracker's world frame has its x axis wherever the device pointed when it started, so the
+room's walls (and the furniture standing square to them) run at any angle to it. Grids and everything cut along
+object axes later (the physics set-up's flat bases and plane decomposition, the search's box primitives) fit a
+piece of furniture best when its axes are the grid's. With metric depth (``align_room``), the fit estimates the
+yaw of the scene's vertical surfaces from the depth normals (walls, cabinet sides: their directions repeat every
+90 deg about z) and works in the frame turned by it; every object's pose then carries that yaw, so its mesh and
+SDF are axis-aligned with the room in object coordinates, and the scene stays where the cameras put it.
 """
 
 from __future__ import annotations
@@ -32,6 +41,7 @@ import os
 import resource
 import sys
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -158,6 +168,11 @@ class FitConfig:
     """Face budget of the background mesh."""
     resolve_overlaps: bool = True
     """Split volumes claimed by two instances at their mid-surface before meshing."""
+    align_room: bool = True
+    """With metric depth, fit in the room's frame: turned about z by the yaw of the scene's vertical surfaces
+    (see the module docstring). Off, or without depth, grids and object axes are the capture's world axes."""
+    min_yaw_deg: float = 0.5
+    """A room yaw below this is taken as none (the capture's frame is the room's already), degrees."""
     seed: int = 0
     """Seed of ray sampling and jitter."""
     device: str = "cpu"
@@ -223,6 +238,9 @@ class FitResult:
     """Faces of the background mesh."""
     used_depth: str = "none"
     """'metric', 'relative' or 'none'."""
+    yaw_deg: float = 0.0
+    """Yaw of the room's frame the fit worked in, about z from the capture's world frame, degrees (0: the world
+    frame; every object's pose carries it)."""
     consensus: Consensus | None = None
     """What the label / depth check across frames changed (None: not run)."""
     wall_time_s: float = 0.0
@@ -274,6 +292,52 @@ def _load_frames(obs: Observations, count: int, use_depth: bool, use_normals: bo
         views.labels, views.depth, checked = label_consensus(views)
         depth = views.depth
     return _Frames(index=idx, views=views, rgb=rgb, normals=normals, depth_raw=depth), checked
+
+
+# --------------------------------------------------------------------------------------------- the room's frame
+def _room_yaw(views: Views, frames: Sequence[int]) -> tuple[float, float]:
+    """Yaw of the scene's vertical surfaces about z, radians in (-pi/4, pi/4], and how strongly they agree
+    (0: no direction stands out, 1: every vertical surface is square to one frame).
+
+    Each depth pixel's normal (from its neighbours two pixels away, none across a depth jump) is turned into the
+    world; those of vertical surfaces (|n_z| < 0.2) vote with their angle about z, four times over (walls and a
+    box's sides repeat every 90 deg), weighted by the area a pixel covers (depth squared); images wider than 160
+    pixels are read every ``width // 160``-th pixel. Needs metric depth.
+    """
+    assert views.depth is not None
+    total, weight = 0j, 0.0
+    r = 2
+    stride = max(1, views.width // 160)
+    for i in frames:
+        depth = views.depth[i][::stride, ::stride].astype(np.float64)
+        k = views.intrinsics[i]
+        h, w = depth.shape
+        if h <= 2 * r or w <= 2 * r:
+            continue
+        v, u = np.mgrid[0:h, 0:w] * stride
+        cam = np.stack([(u - k[0, 2]) / k[0, 0] * depth, (v - k[1, 2]) / k[1, 1] * depth, depth], axis=-1)
+        centre = depth[r:-r, r:-r]
+        around = [depth[r:-r, 2 * r :], depth[r:-r, : -2 * r], depth[2 * r :, r:-r], depth[: -2 * r, r:-r]]
+        ok = (centre > 0) & np.all([(d > 0) & (np.abs(d - centre) < 0.05 * centre) for d in around], axis=0)
+        du = cam[r:-r, 2 * r :] - cam[r:-r, : -2 * r]
+        dv = cam[2 * r :, r:-r] - cam[: -2 * r, r:-r]
+        normal = np.cross(du[ok], dv[ok])
+        length = np.linalg.norm(normal, axis=1)
+        keep = length > 0
+        normal = (normal[keep] / length[keep, None]) @ views.poses[i, :3, :3].T
+        area = centre[ok][keep] ** 2
+        vertical = np.abs(normal[:, 2]) < 0.2
+        angle = np.arctan2(normal[vertical, 1], normal[vertical, 0])
+        total += np.sum(area[vertical] * np.exp(4j * angle))
+        weight += float(area[vertical].sum())
+    if weight <= 0:
+        return 0.0, 0.0
+    return float(np.angle(total)) / 4.0, float(abs(total)) / weight
+
+
+def _turn_z(yaw: float) -> np.ndarray:
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 # --------------------------------------------------------------------------------------------- background
@@ -756,6 +820,18 @@ def fit(scene: SceneGraph, obs: Observations, config: FitConfig | None = None,
               f"unknown ({share:.1f}% of {checked.checked}), {checked.flying} flying depth pixels dropped",
               file=sys.stderr)  # fmt: skip
     fusion = evenly_spaced(len(views), config.fusion_frames)
+    yaw = 0.0
+    if metric and config.align_room:
+        found, agreement = _room_yaw(views, fusion)
+        if abs(np.degrees(found)) >= config.min_yaw_deg and agreement >= 0.2:
+            yaw = found
+            turn = np.eye(4)
+            turn[:3, :3] = _turn_z(-yaw)
+            views.poses = np.einsum("ij,njk->nik", turn, views.poses)  # the fit's frame: the room's walls on x, y
+            if config.progress:
+                print(f"fit: working in the room's frame, turned {np.degrees(yaw):.1f} deg about z from the "
+                      f"capture's (vertical surfaces agree {100 * agreement:.0f}%)", file=sys.stderr)  # fmt: skip
+    to_world = _turn_z(yaw)
     timings["load"] = time.perf_counter() - start
 
     t0 = time.perf_counter()
@@ -826,6 +902,7 @@ def fit(scene: SceneGraph, obs: Observations, config: FitConfig | None = None,
         _resolve_overlaps(instances)
     scene.push_layer(out_dir / FIT_LAYER, provenance="s1_fit", replace=True)
     results: list[ObjectFit] = []
+    placed: list[np.ndarray] = []  # the meshes' bounds in the fit's frame
     for inst in instances:
         fit_info = ObjectFit(name=inst.name, instance_id=inst.instance_id, pixels=inst.pixels,
                              voxel_size=inst.grid.voxel_size if inst.grid else 0.0,
@@ -845,7 +922,8 @@ def fit(scene: SceneGraph, obs: Observations, config: FitConfig | None = None,
         if meshed_mesh is not None:
             lo, hi = meshed_mesh.bounds
             origin = np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, lo[2]])
-            scene.set_pose(inst.name, Pose(translation=origin))
+            scene.set_pose(inst.name, Pose(translation=to_world @ origin,
+                                           orientation=(0.0, 0.0, np.sin(yaw / 2), np.cos(yaw / 2))))  # fmt: skip
             scene.set_mesh(inst.name, MeshData(points=meshed_mesh.points - origin, faces=meshed_mesh.faces))
             if inst.grid is not None and inst.sdf is not None:
                 scene.set_sdf(inst.name, SdfField(grid=inst.sdf, origin=inst.grid.origin - origin,
@@ -857,19 +935,22 @@ def fit(scene: SceneGraph, obs: Observations, config: FitConfig | None = None,
                                                            inst.instance_id, tolerance)  # fmt: skip
             scene.set_node_info(inst.name, observed_fraction=fit_info.observed_fraction)
             fit_info.fallback = fallback
-            fit_info.bounds_world = np.stack([lo, hi])
+            fit_info.bounds_world = np.stack([lo, hi])  # the fit's frame here; turned to the world's below
+            placed.append(fit_info.bounds_world)
+            if yaw:
+                world = meshed_mesh.points @ to_world.T
+                fit_info.bounds_world = np.stack([world.min(axis=0), world.max(axis=0)])
         results.append(fit_info)
         if bar is not None:
             bar.update(1)
     if background is None:
-        boxes = [r.bounds_world for r in results if r.bounds_world is not None]
         cams = views.poses[:, :3, 3]
-        pts = np.concatenate([np.concatenate(boxes), cams]) if boxes else cams
+        pts = np.concatenate([np.concatenate(placed), cams]) if placed else cams
         margin = 0.5
         background = _floor_slab(floor_estimate, pts.min(0) - margin, pts.max(0) + margin)
-    scene.set_mesh(BACKGROUND, background)
-    scene.set_node_info(BACKGROUND, observed_fraction=observed_fraction(
-        background.points, background.faces, views, 0, max(0.05, 3.0 * config.background_voxel)))  # fmt: skip
+    seen = observed_fraction(background.points, background.faces, views, 0, max(0.05, 3.0 * config.background_voxel))
+    scene.set_mesh(BACKGROUND, replace(background, points=background.points @ to_world.T) if yaw else background)
+    scene.set_node_info(BACKGROUND, observed_fraction=seen)
     scene.save()
     if bar is not None:
         bar.close()
@@ -880,6 +961,7 @@ def fit(scene: SceneGraph, obs: Observations, config: FitConfig | None = None,
         floor_z=floor_estimate,
         background_faces=len(background.faces),
         used_depth=obs.depth_kind or "none",
+        yaw_deg=float(np.degrees(yaw)),
         consensus=checked,
         wall_time_s=time.perf_counter() - start,
         timings=timings,
