@@ -263,6 +263,30 @@ def test_fit_works_in_the_room_frame_when_the_capture_is_turned(tmp_path: Path) 
         np.testing.assert_allclose(a.max(0), b.max(0), atol=0.03)
 
 
+def test_a_capture_that_is_not_level_is_reported(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from holousd.geometry._grid import Views
+
+    level = render_capture([SPHERE, BOX], ring_poses((0.0, 0.0, 0.1)), [(0.9, 0.2, 0.2), (0.2, 0.3, 0.9)])
+    a = np.radians(6.0)
+    tip = np.eye(4)
+    tip[1:3, 1:3] = [[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]]  # the world turned 6 deg about x
+    tilted = Observations(rgb=[level.rgb(i) for i in range(FRAMES)], intrinsics=level.intrinsics,
+                          poses=np.einsum("ij,njk->nik", tip, level.poses), width=SIZE, height=SIZE,
+                          masks=[level.mask(i) for i in range(FRAMES)], depth=[level.depth(i) for i in range(FRAMES)],
+                          depth_kind="metric")  # fmt: skip
+
+    def views(obs: Observations) -> Views:
+        return Views(intrinsics=obs.intrinsics, poses=obs.poses, labels=np.stack([obs.mask(i) for i in range(FRAMES)]),
+                     depth=np.stack([obs.depth(i) for i in range(FRAMES)]))  # fmt: skip
+
+    assert _fit._up_tilt(views(level), range(FRAMES)) < 0.5
+    assert _fit._up_tilt(views(tilted), range(FRAMES)) == pytest.approx(6.0, abs=0.5)
+    result = _fit.fit(_observe.run(tilted, tmp_path), tilted, replace(TEST_CONFIG, iterations=0))
+    assert result.tilt_deg == pytest.approx(6.0, abs=0.5)
+    err = capsys.readouterr().err
+    assert "deg away from its world z axis" in err and "gravity along -z" in err
+
+
 def test_bad_inputs_fail_with_clear_messages(tmp_path: Path) -> None:
     poses = ring_poses((0.0, 0.0, 0.1))[:3]
     obs = render_capture([SPHERE], poses, [(0.9, 0.2, 0.2)])

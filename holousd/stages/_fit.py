@@ -173,6 +173,9 @@ class FitConfig:
     (see the module docstring). Off, or without depth, grids and object axes are the capture's world axes."""
     min_yaw_deg: float = 0.5
     """A room yaw below this is taken as none (the capture's frame is the room's already), degrees."""
+    max_tilt_deg: float = 2.0
+    """With metric depth, warn when the upward-facing surfaces' mean normal lies further than this from the world
+    z axis, degrees (the capture is not level; the demo's tracker poses give 1.0, its exact ones 0.3)."""
     seed: int = 0
     """Seed of ray sampling and jitter."""
     device: str = "cpu"
@@ -241,6 +244,9 @@ class FitResult:
     yaw_deg: float = 0.0
     """Yaw of the room's frame the fit worked in, about z from the capture's world frame, degrees (0: the world
     frame; every object's pose carries it)."""
+    tilt_deg: float | None = None
+    """Angle of the upward-facing surfaces' mean normal from the world z axis, degrees (None: no metric depth, or
+    nothing faces up); above ``max_tilt_deg`` the fit warns that the capture is not level."""
     consensus: Consensus | None = None
     """What the label / depth check across frames changed (None: not run)."""
     wall_time_s: float = 0.0
@@ -295,37 +301,43 @@ def _load_frames(obs: Observations, count: int, use_depth: bool, use_normals: bo
 
 
 # --------------------------------------------------------------------------------------------- the room's frame
+def _world_normals(views: Views, i: int) -> tuple[np.ndarray, np.ndarray]:
+    """Unit world normals of frame ``i``'s depth, facing the camera (from the points two pixels to either side,
+    none across a depth jump; images wider than 160 pixels read every ``width // 160``-th pixel), and the area
+    each stands for (depth squared)."""
+    assert views.depth is not None
+    r = 2
+    stride = max(1, views.width // 160)
+    depth = views.depth[i][::stride, ::stride].astype(np.float64)
+    k = views.intrinsics[i]
+    h, w = depth.shape
+    if h <= 2 * r or w <= 2 * r:
+        return np.zeros((0, 3)), np.zeros(0)
+    v, u = np.mgrid[0:h, 0:w] * stride
+    cam = np.stack([(u - k[0, 2]) / k[0, 0] * depth, (v - k[1, 2]) / k[1, 1] * depth, depth], axis=-1)
+    centre = depth[r:-r, r:-r]
+    around = [depth[r:-r, 2 * r :], depth[r:-r, : -2 * r], depth[2 * r :, r:-r], depth[: -2 * r, r:-r]]
+    ok = (centre > 0) & np.all([(d > 0) & (np.abs(d - centre) < 0.05 * centre) for d in around], axis=0)
+    # facing the camera: down the image (y) crossed with along it (x) points back along the optical axis
+    down = cam[2 * r :, r:-r][ok] - cam[: -2 * r, r:-r][ok]
+    normal = np.cross(down, cam[r:-r, 2 * r :][ok] - cam[r:-r, : -2 * r][ok])
+    length = np.linalg.norm(normal, axis=1)
+    keep = length > 0
+    normal = (normal[keep] / length[keep, None]) @ views.poses[i, :3, :3].T
+    return normal, centre[ok][keep] ** 2
+
+
 def _room_yaw(views: Views, frames: Sequence[int]) -> tuple[float, float]:
     """Yaw of the scene's vertical surfaces about z, radians in (-pi/4, pi/4], and how strongly they agree
     (0: no direction stands out, 1: every vertical surface is square to one frame).
 
-    Each depth pixel's normal (from its neighbours two pixels away, none across a depth jump) is turned into the
-    world; those of vertical surfaces (|n_z| < 0.2) vote with their angle about z, four times over (walls and a
-    box's sides repeat every 90 deg), weighted by the area a pixel covers (depth squared); images wider than 160
-    pixels are read every ``width // 160``-th pixel. Needs metric depth.
+    The depth normals (:func:`_world_normals`) of vertical surfaces (|n_z| < 0.2) vote with their angle about z,
+    four times over (walls and a box's sides repeat every 90 deg), weighted by the area a pixel covers. Needs
+    metric depth.
     """
-    assert views.depth is not None
     total, weight = 0j, 0.0
-    r = 2
-    stride = max(1, views.width // 160)
     for i in frames:
-        depth = views.depth[i][::stride, ::stride].astype(np.float64)
-        k = views.intrinsics[i]
-        h, w = depth.shape
-        if h <= 2 * r or w <= 2 * r:
-            continue
-        v, u = np.mgrid[0:h, 0:w] * stride
-        cam = np.stack([(u - k[0, 2]) / k[0, 0] * depth, (v - k[1, 2]) / k[1, 1] * depth, depth], axis=-1)
-        centre = depth[r:-r, r:-r]
-        around = [depth[r:-r, 2 * r :], depth[r:-r, : -2 * r], depth[2 * r :, r:-r], depth[: -2 * r, r:-r]]
-        ok = (centre > 0) & np.all([(d > 0) & (np.abs(d - centre) < 0.05 * centre) for d in around], axis=0)
-        du = cam[r:-r, 2 * r :] - cam[r:-r, : -2 * r]
-        dv = cam[2 * r :, r:-r] - cam[: -2 * r, r:-r]
-        normal = np.cross(du[ok], dv[ok])
-        length = np.linalg.norm(normal, axis=1)
-        keep = length > 0
-        normal = (normal[keep] / length[keep, None]) @ views.poses[i, :3, :3].T
-        area = centre[ok][keep] ** 2
+        normal, area = _world_normals(views, i)
         vertical = np.abs(normal[:, 2]) < 0.2
         angle = np.arctan2(normal[vertical, 1], normal[vertical, 0])
         total += np.sum(area[vertical] * np.exp(4j * angle))
@@ -333,6 +345,21 @@ def _room_yaw(views: Views, frames: Sequence[int]) -> tuple[float, float]:
     if weight <= 0:
         return 0.0, 0.0
     return float(np.angle(total)) / 4.0, float(abs(total)) / weight
+
+
+def _up_tilt(views: Views, frames: Sequence[int]) -> float | None:
+    """Angle between the world's z axis and the mean normal of the scene's upward-facing surfaces (floor, table
+    tops: depth normals within 35 deg of z, area-weighted), degrees; None when too few face up. Physics pulls
+    along -z: a capture whose floor tilts is not the level world the simulation assumes."""
+    total, weight = np.zeros(3), 0.0
+    for i in frames:
+        normal, area = _world_normals(views, i)
+        up = normal[:, 2] > np.cos(np.radians(35.0))
+        total += (normal[up] * area[up, None]).sum(axis=0)
+        weight += float(area[up].sum())
+    if weight <= 0 or np.linalg.norm(total) <= 0:
+        return None
+    return float(np.degrees(np.arccos(np.clip(total[2] / np.linalg.norm(total), -1.0, 1.0))))
 
 
 def _turn_z(yaw: float) -> np.ndarray:
@@ -832,6 +859,12 @@ def fit(scene: SceneGraph, obs: Observations, config: FitConfig | None = None,
                 print(f"fit: working in the room's frame, turned {np.degrees(yaw):.1f} deg about z from the "
                       f"capture's (vertical surfaces agree {100 * agreement:.0f}%)", file=sys.stderr)  # fmt: skip
     to_world = _turn_z(yaw)
+    tilt = _up_tilt(views, fusion) if metric else None
+    if tilt is not None and tilt > config.max_tilt_deg:
+        where = obs.camera_file or obs.root or "<observations>"
+        print(f"warning: {where}: the capture's floor and tops face {tilt:.1f} deg away from its world z axis: "
+              "physics pulls along -z, so what stands in the room slides or tips in the scene; give camera poses "
+              "with gravity along -z (level the world frame)", file=sys.stderr)  # fmt: skip
     timings["load"] = time.perf_counter() - start
 
     t0 = time.perf_counter()
@@ -962,6 +995,7 @@ def fit(scene: SceneGraph, obs: Observations, config: FitConfig | None = None,
         background_faces=len(background.faces),
         used_depth=obs.depth_kind or "none",
         yaw_deg=float(np.degrees(yaw)),
+        tilt_deg=tilt,
         consensus=checked,
         wall_time_s=time.perf_counter() - start,
         timings=timings,
