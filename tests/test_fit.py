@@ -261,6 +261,15 @@ def test_fit_works_in_the_room_frame_when_the_capture_is_turned(tmp_path: Path) 
         b, _ = _world_mesh(world.scene, name)
         np.testing.assert_allclose(a.min(0), b.min(0), atol=0.03)
         np.testing.assert_allclose(a.max(0), b.max(0), atol=0.03)
+    for one, other in zip(turned.objects, world.objects, strict=True):  # the reported bounds are the world's
+        np.testing.assert_allclose(one.bounds_world, other.bounds_world, atol=0.03)
+    # the room shell too: the turned fit's floor lies where the other's does, not 30 deg round
+    from scipy.spatial import ConvexHull
+
+    floor = _world_mesh(world.scene, "background")[0]
+    edges = ConvexHull(floor[:, :2]).equations
+    mine = _world_mesh(turned.scene, "background")[0][:, :2]
+    assert np.mean(np.all(mine @ edges[:, :2].T + edges[:, 2] <= 0.15, axis=1)) > 0.95
 
 
 def test_a_capture_that_is_not_level_is_reported(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -72,10 +72,21 @@ def test_a_revisit_waits_for_a_child_the_set_up_cannot_stand_and_a_ramp_still_th
     on = static_stability(cube, facet, flatten=flatten)
     assert on.stands and on.tilt_deg == pytest.approx(0.0, abs=1e-6), on
     scorer = _search._Scorer(_search.SearchConfig(), 0.0)
+    strict = _search._Scorer(_search.SearchConfig(support_flatten=0.0), 0.0)
+
+    def needs_revisit(child: MeshData, parent: MeshData, with_scorer: _search._Scorer) -> bool:
+        stable, touch, pene = with_scorer.physics(child, "top", parent, {})
+        score = _search.CandidateScore(proposer="stage1", seed=0, note="", observation=0.1, rejected=False,
+                                       stable=stable, touch_cm=touch, pene_cm3=pene,
+                                       total=with_scorer.total(0.1, False, stable, touch, pene))  # fmt: skip
+        return _search._needs_revisit(score, [(None, child)], [score], "top", parent, with_scorer)
+
     assert scorer.physics(_mesh(*cube), "top", _mesh(*facet), {})[0] > 0  # E_stable: the fitted facet tips it
-    assert scorer.stands_once_set_up(_mesh(*cube), "top", _mesh(*facet))  # no revisit: the set-up stands it
+    assert not needs_revisit(_mesh(*cube), _mesh(*facet), scorer)  # the set-up stands it: the parent stays
+    assert needs_revisit(_mesh(*cube), _mesh(*facet), strict)  # without the gate the parent would be revisited
     past = _mesh(*_box((0.0, 0.0, 0.30), (0.2, 0.1, 0.4)))  # centre of mass 8 cm past its support's end
-    assert not scorer.stands_once_set_up(past, "table", _mesh(*_box((-0.3, 0.0, 0.0), (0.02, 0.1, 0.30))))
+    assert needs_revisit(past, _mesh(*_box((-0.3, 0.0, 0.0), (0.02, 0.1, 0.30))), scorer)
+    assert not needs_revisit(_mesh(*cube), _mesh(*_box((-0.3, -0.3, -0.1), (0.3, 0.3, 0.0))), strict)  # stands
     # negative controls: a 20 cm block on a 35 or 40 degree ramp spans 11-17 cm of it: the set-up flattens its
     # top 1.5 cm only, and the block still slides off
     block = _box((-0.1, -0.05, 0.0), (0.1, 0.05, 0.1))

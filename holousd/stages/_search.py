@@ -352,10 +352,8 @@ def search(scene: SceneGraph, obs, config: SearchConfig | None = None,  # noqa: 
                     continue
                 chosen = _pick(scores)
                 choice = ObjectChoice(name=name, parent=parent, scores=scores, chosen=chosen, wall_s=0.0)
-                if (config.mode == "tree" and config.revisit and scores[chosen].stable > 0 and parent in by_name
-                        and not any(scorer.stands_once_set_up(world, parent, placed.get(parent))
-                                    for (_, world), sc in zip(found, scores, strict=True)
-                                    if math.isfinite(sc.total))):  # fmt: skip
+                if (config.mode == "tree" and config.revisit and parent in by_name
+                        and _needs_revisit(scores[chosen], found, scores, parent, placed.get(parent), scorer)):
                     _revisit(name, choice, found, by_name[parent], candidates[parent], relations, placed, scorer)
                 placed[name] = found[choice.chosen][1]
                 candidates[name] = found
@@ -451,6 +449,16 @@ def _pick(scores: list[CandidateScore]) -> int:
         return min(live, key=lambda i: (scores[i].total, i))
     stage1 = [i for i, s in enumerate(scores) if s.proposer == "stage1"]
     return stage1[0] if stage1 else 0
+
+
+def _needs_revisit(chosen: CandidateScore, found: list, scores: list[CandidateScore], parent: str,
+                   parent_mesh: MeshData | None, scorer: _Scorer) -> bool:  # fmt: skip
+    """Whether a child's parent should be revisited: its chosen candidate does not stand on the parent's chosen
+    shape, and none of its candidates E_obs keeps stands even on that shape's top as the set-up leaves it."""
+    if chosen.stable <= 0:
+        return False
+    return not any(scorer.stands_once_set_up(world, parent, parent_mesh)
+                   for (_, world), sc in zip(found, scores, strict=True) if math.isfinite(sc.total))  # fmt: skip
 
 
 def _revisit(name: str, choice: ObjectChoice, found: list, parent_choice: ObjectChoice, parent_found: list,
