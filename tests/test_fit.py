@@ -288,8 +288,11 @@ def test_a_capture_that_is_not_level_is_reported(tmp_path: Path, capsys: pytest.
         return Views(intrinsics=obs.intrinsics, poses=obs.poses, labels=np.stack([obs.mask(i) for i in range(FRAMES)]),
                      depth=np.stack([obs.depth(i) for i in range(FRAMES)]))  # fmt: skip
 
-    assert _fit._up_tilt(views(level), range(FRAMES)) < 0.5
-    assert _fit._up_tilt(views(tilted), range(FRAMES)) == pytest.approx(6.0, abs=0.5)
+    def normals(obs: Observations) -> list:
+        return [_fit._world_normals(views(obs), i) for i in range(FRAMES)]
+
+    assert _fit._up_tilt(normals(level)) < 0.5
+    assert _fit._up_tilt(normals(tilted)) == pytest.approx(6.0, abs=0.5)
     result = _fit.fit(_observe.run(tilted, tmp_path), tilted, replace(TEST_CONFIG, iterations=0))
     assert result.tilt_deg == pytest.approx(6.0, abs=0.5)
     err = capsys.readouterr().err

@@ -357,10 +357,11 @@ def test_large_arrays_and_long_time_samples_go_to_a_crate_file_under_the_text_la
     assert np.abs(np.asarray(fresh.GetAttributeAtPath("/World/Objects/cup/Geom.points").default)).max() == 0.0
     assert fresh.GetAttributeAtPath("/World/Objects/cup.holo:test:spin") is not None
     # Saved elsewhere, a layer read from disk takes its crate data along (folded from its own data file).
-    shutil.copytree(tmp_path, tmp_path.parent / f"{tmp_path.name}_moved")  # a layer no process has open yet
-    read = Sdf.Layer.FindOrOpen(str(tmp_path.parent / f"{tmp_path.name}_moved" / "scene.usda"))
+    moved = tmp_path.parent / f"{tmp_path.name}_moved"
+    shutil.copytree(tmp_path, moved)  # a layer no process has open yet
+    read = Sdf.Layer.FindOrOpen(str(moved / "scene.usda"))
     assert list(read.subLayerPaths) == ["./assets/scene/arrays.usdc"]
-    moved = tmp_path.parent / f"{tmp_path.name}_moved"  # a layer whose data file went missing is not saved without it
+    # a layer whose data file went missing is not saved without it
     (moved / "assets" / "scene" / "arrays.usdc").rename(moved / "arrays_elsewhere.usdc")
     with pytest.raises(SceneError, match="data file .* is missing"):
         holousd.usd.save_layer(read, tmp_path / "copy.usda")

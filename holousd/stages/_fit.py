@@ -41,7 +41,6 @@ import os
 import resource
 import sys
 import time
-from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -327,17 +326,20 @@ def _world_normals(views: Views, i: int) -> tuple[np.ndarray, np.ndarray]:
     return normal, centre[ok][keep] ** 2
 
 
-def _room_yaw(views: Views, frames: Sequence[int]) -> tuple[float, float]:
+Normals = list[tuple[np.ndarray, np.ndarray]]
+"""Per frame, :func:`_world_normals`' (normals, areas)."""
+
+
+def _room_yaw(normals: Normals) -> tuple[float, float]:
     """Yaw of the scene's vertical surfaces about z, radians in (-pi/4, pi/4], and how strongly they agree
     (0: no direction stands out, 1: every vertical surface is square to one frame).
 
-    The depth normals (:func:`_world_normals`) of vertical surfaces (|n_z| < 0.2) vote with their angle about z,
-    four times over (walls and a box's sides repeat every 90 deg), weighted by the area a pixel covers. Needs
-    metric depth.
+    The depth normals (:func:`_world_normals`, per frame) of vertical surfaces (|n_z| < 0.2) vote with their
+    angle about z, four times over (walls and a box's sides repeat every 90 deg), weighted by the area a pixel
+    covers.
     """
     total, weight = 0j, 0.0
-    for i in frames:
-        normal, area = _world_normals(views, i)
+    for normal, area in normals:
         vertical = np.abs(normal[:, 2]) < 0.2
         angle = np.arctan2(normal[vertical, 1], normal[vertical, 0])
         total += np.sum(area[vertical] * np.exp(4j * angle))
@@ -347,24 +349,19 @@ def _room_yaw(views: Views, frames: Sequence[int]) -> tuple[float, float]:
     return float(np.angle(total)) / 4.0, float(abs(total)) / weight
 
 
-def _up_tilt(views: Views, frames: Sequence[int]) -> float | None:
+def _up_tilt(normals: Normals) -> float | None:
     """Angle between the world's z axis and the mean normal of the scene's upward-facing surfaces (floor, table
     tops: depth normals within 35 deg of z, area-weighted), degrees; None when too few face up. Physics pulls
-    along -z: a capture whose floor tilts is not the level world the simulation assumes."""
+    along -z: a capture whose floor tilts is not the level world the simulation assumes. A turn about z leaves
+    it as it is."""
     total, weight = np.zeros(3), 0.0
-    for i in frames:
-        normal, area = _world_normals(views, i)
+    for normal, area in normals:
         up = normal[:, 2] > np.cos(np.radians(35.0))
         total += (normal[up] * area[up, None]).sum(axis=0)
         weight += float(area[up].sum())
     if weight <= 0 or np.linalg.norm(total) <= 0:
         return None
     return float(np.degrees(np.arccos(np.clip(total[2] / np.linalg.norm(total), -1.0, 1.0))))
-
-
-def _turn_z(yaw: float) -> np.ndarray:
-    c, s = np.cos(yaw), np.sin(yaw)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
 # --------------------------------------------------------------------------------------------- background
@@ -847,19 +844,22 @@ def fit(scene: SceneGraph, obs: Observations, config: FitConfig | None = None,
               f"unknown ({share:.1f}% of {checked.checked}), {checked.flying} flying depth pixels dropped",
               file=sys.stderr)  # fmt: skip
     fusion = evenly_spaced(len(views), config.fusion_frames)
+    normals = [_world_normals(views, int(i)) for i in fusion] if metric else []  # once, before any turn
     yaw = 0.0
     if metric and config.align_room:
-        found, agreement = _room_yaw(views, fusion)
+        found, agreement = _room_yaw(normals)
         if abs(np.degrees(found)) >= config.min_yaw_deg and agreement >= 0.2:
             yaw = found
-            turn = np.eye(4)
-            turn[:3, :3] = _turn_z(-yaw)
-            views.poses = np.einsum("ij,njk->nik", turn, views.poses)  # the fit's frame: the room's walls on x, y
             if config.progress:
                 print(f"fit: working in the room's frame, turned {np.degrees(yaw):.1f} deg about z from the "
                       f"capture's (vertical surfaces agree {100 * agreement:.0f}%)", file=sys.stderr)  # fmt: skip
-    to_world = _turn_z(yaw)
-    tilt = _up_tilt(views, fusion) if metric else None
+    room = Pose(orientation=(0.0, 0.0, np.sin(yaw / 2), np.cos(yaw / 2)))  # the room's frame in the capture's
+    to_world = room.rotation_matrix()
+    if yaw:
+        turn = np.eye(4)
+        turn[:3, :3] = to_world.T
+        views.poses = np.einsum("ij,njk->nik", turn, views.poses)  # the fit's frame: the room's walls on x, y
+    tilt = _up_tilt(normals) if metric else None
     if tilt is not None and tilt > config.max_tilt_deg:
         where = obs.camera_file or obs.root or "<observations>"
         print(f"warning: {where}: the capture's floor and tops face {tilt:.1f} deg away from its world z axis: "
@@ -955,8 +955,7 @@ def fit(scene: SceneGraph, obs: Observations, config: FitConfig | None = None,
         if meshed_mesh is not None:
             lo, hi = meshed_mesh.bounds
             origin = np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, lo[2]])
-            scene.set_pose(inst.name, Pose(translation=to_world @ origin,
-                                           orientation=(0.0, 0.0, np.sin(yaw / 2), np.cos(yaw / 2))))  # fmt: skip
+            scene.set_pose(inst.name, Pose(translation=to_world @ origin, orientation=room.orientation))
             scene.set_mesh(inst.name, MeshData(points=meshed_mesh.points - origin, faces=meshed_mesh.faces))
             if inst.grid is not None and inst.sdf is not None:
                 scene.set_sdf(inst.name, SdfField(grid=inst.sdf, origin=inst.grid.origin - origin,
