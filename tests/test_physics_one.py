@@ -360,6 +360,15 @@ def test_support_is_what_an_object_touches_not_what_its_overhang_is_above() -> N
               "book": _box((-0.21, -0.28, 0.738), (0.02, -0.12, 0.7655)),
               "box": _box((0.006, -0.283, 0.7457), (0.15, -0.15, 0.862))}
     assert infer_relations(beside).support == {"table": BACKGROUND, "book": "table", "box": "table"}
+    # a ball over a hole the fit left in a high board (hard/shelf's ball, 1.2 m up: its contact rays fell to the
+    # board below and it was put on the room): what lies under its footprint within max_gap is its support; a
+    # box on the floor with nothing under it stays on the room
+    board = trimesh.boolean.difference([trimesh.Trimesh(*_box((-0.4, -0.15, 0.0), (0.4, 0.15, 1.2))),
+                                        trimesh.Trimesh(*_box((-0.02, -0.16, 0.8), (0.03, 0.02, 1.3)))],
+                                       engine="manifold")  # fmt: skip
+    holed = {"shelf": (np.asarray(board.vertices), np.asarray(board.faces)), "ball": _ball((0.0, 0.0, 1.236), 0.035),
+             "box": _box((0.6, 0.0, 0.0), (0.8, 0.2, 0.2))}  # fmt: skip
+    assert infer_relations(holed).support == {"shelf": BACKGROUND, "ball": "shelf", "box": BACKGROUND}
 
 
 # ----------------------------------------------------------------------------------------------- decomposition
@@ -680,6 +689,56 @@ def test_a_bump_under_a_childs_edge_is_cut_with_the_rest_of_its_patch(tmp_path: 
     box_parts = [(box_pose.apply(p.points), p.faces) for p in scene.get_collider("box").parts]
     worst = max(overlap(a, (b.vertices, b.faces)).volume_m3 for a in box_parts for b in parts)
     assert worst < 1e-7, worst
+
+
+def test_a_support_left_open_under_its_child_is_spanned_within_its_own_top(tmp_path: Path) -> None:
+    """What rests on a support hides the support's top from every camera; a fit may leave it open there
+    (hard/shelf's board was fitted as its seen front edge alone under a 20 cm box, which tipped back into the gap).
+    The flat top is carried over the opening within the support's own top, in mesh and collider, and the box
+    stands; the overhang case above (a box past its support's edge) still falls: nothing is added past an
+    edge."""
+    block = trimesh.Trimesh(*_box((-0.3, -0.3, -0.005), (0.3, 0.3, 0.5)))
+    pit = trimesh.Trimesh(*_box((-0.09, -0.06, 0.4), (0.09, 0.2, 0.6)))  # 10 cm deep under the box's back
+    support = trimesh.boolean.difference([block, pit], engine="manifold")
+    objects = {"cabinet": (np.asarray(support.vertices, float), np.asarray(support.faces)),
+               "box": _box((-0.1, -0.1, 0.5015), (0.1, 0.1, 0.65))}  # fmt: skip
+    scene = _scene(tmp_path, objects)
+    rec = _records(setup_physics(scene, PhysicsSetupConfig()))
+    assert rec["box"].parent == "cabinet" and "span:top:box" in rec["cabinet"].edits, rec["cabinet"]
+    xs, ys = np.meshgrid(np.linspace(-0.08, 0.08, 5), np.linspace(-0.05, 0.09, 5))  # over the pit, under the box
+    origins = np.column_stack([xs.ravel(), ys.ravel(), np.full(xs.size, 0.52)])
+    down = np.tile([0.0, 0.0, -1.0], (len(origins), 1))
+    pose = scene.get_pose("cabinet")
+    parts = [trimesh.Trimesh(pose.apply(p.points), p.faces, process=False) for p in scene.get_collider("cabinet").parts]
+    for surface in (trimesh.Trimesh(*_world_mesh(scene, "cabinet"), process=False), trimesh.util.concatenate(parts)):
+        hits, rays, _ = surface.ray.intersects_location(origins, down, multiple_hits=False)
+        assert len(rays) == len(origins) and np.all(np.abs(hits[:, 2] - 0.5) < 2e-3), np.round(hits[:, 2], 4)
+    # the pit past the box stays open: the span covers the box's footprint (1 cm wider) and no more
+    hits, rays, _ = trimesh.Trimesh(*_world_mesh(scene, "cabinet"), process=False).ray.intersects_location(
+        [[0.0, 0.17, 0.52]], [[0.0, 0.0, -1.0]], multiple_hits=False)
+    assert len(rays) == 1 and hits[0, 2] < 0.45, hits
+    assert all(xpbd and mujoco for xpbd, mujoco in _verdicts(scene).values())
+
+
+def test_a_lump_under_a_childs_overhang_sets_no_ledge(tmp_path: Path) -> None:
+    """A lump of the support under a child's overhang, clear of the child's underside (demo's bowl: a lump of
+    the shelf's fitted back 3 cm up under its rim, where no camera sees), holds nothing up: the flat top stays
+    at the surface the child's base rests on, the lump is cut away under the child's outline (up to where the
+    flat top is looked for) and the child keeps its place. It was read as the top's highest point; the top was
+    cut flat 1 cm above the board under the child, which was lifted onto that ledge."""
+    wall = _box((0.14, -0.3, 0.5), (0.2, 0.3, 0.7))  # beside the plate, 2 cm off its edge
+    lump = _box((0.06, -0.05, 0.5), (0.15, 0.05, 0.525))  # from the wall, 1.5 cm under the plate's overhang
+    mushroom = _union(_box((-0.05, -0.05, 0.5015), (0.05, 0.05, 0.54)), _box((-0.12, -0.12, 0.54), (0.12, 0.12, 0.56)))
+    objects = {"table": _union(_box((-0.3, -0.3, -0.005), (0.3, 0.3, 0.5)), wall, lump), "lamp": mushroom}
+    scene = _scene(tmp_path, objects)
+    rec = _records(setup_physics(scene, PhysicsSetupConfig()))
+    assert rec["lamp"].parent == "table" and "cut:under:lamp" in rec["table"].edits, rec["table"]
+    assert 0.5005 < _world(scene, "lamp")[:, 2].min() <= 0.502
+    table = _world_mesh(scene, "table")
+    hits, rays, _ = trimesh.Trimesh(*table, process=False).ray.intersects_location(
+        [[0.085, 0.0, 0.53]], [[0.0, 0.0, -1.0]], multiple_hits=False)
+    assert len(rays) == 1 and hits[0, 2] < 0.5 + 1e-3, hits  # the lump went under the plate
+    assert all(xpbd and mujoco for xpbd, mujoco in _verdicts(scene).values())
 
 
 @pytest.mark.parametrize("margin", [0.0, 0.1])

@@ -149,6 +149,7 @@ def infer_relations(meshes: dict[str, Mesh], config: RelationConfig | None = Non
     bounds = {n: tms[n].bounds for n in names}  # [2, 3]
     intersectors = {n: RayMeshIntersector(tms[n]) for n in names}
     result = Relations()
+    floor = min((float(bounds[n][0][2]) for n in names), default=0.0)  # what stands on the room stands about here
     for name in names:
         pts = np.asarray(meshes[name][0], float)
         low = _contact_points(meshes[name], config)
@@ -181,6 +182,8 @@ def infer_relations(meshes: dict[str, Mesh], config: RelationConfig | None = Non
         touching = hit & (best <= (best[hit].min() if hit.any() else 0.0) + config.contact_band)
         for o in owner[touching]:
             votes[o] = votes.get(o, 0) + 1
+        if not votes and bottom > floor + config.max_gap:
+            votes = _votes_under_footprint(name, meshes[name], names, intersectors, bounds, tms, config)
         result.votes[name] = votes
         result.support[name] = max(sorted(votes), key=lambda k: votes[k]) if votes else BACKGROUND
     result.beside = {n: [] for n in names}
@@ -205,6 +208,38 @@ def infer_relations(meshes: dict[str, Mesh], config: RelationConfig | None = Non
     for n in names:
         result.beside[n].sort()
     return result
+
+
+def _votes_under_footprint(name: str, mesh: Mesh, names: list[str], intersectors: dict, bounds: dict,
+                           tms: dict, config: RelationConfig) -> dict[str, int]:  # fmt: skip
+    """Votes for the parent of an object whose contact points lie over nothing within ``max_gap`` (a hole the
+    fit left in the board under it: hard/shelf's ball on the top board, its contact rays fell 40 cm to the board
+    below and it was put on the room, 1.2 m above the floor): rays down from every point of its lowest
+    ``max_gap``, each voting for the object whose upward face it meets first, at most ``max_gap`` below the
+    object's bottom."""
+    points = np.asarray(mesh[0], float)
+    bottom = float(points[:, 2].min())
+    low = points[points[:, 2] <= bottom + config.max_gap]
+    low = low[evenly_spaced(len(low), config.max_rays)]
+    origins = low + np.array([0.0, 0.0, config.ray_start])
+    directions = np.tile([0.0, 0.0, -1.0], (len(origins), 1))
+    best = np.full(len(origins), -np.inf)  # [K] height of the highest upward face met
+    owner = np.full(len(origins), "", dtype=object)
+    for other in names:
+        lo, hi = bounds[other]
+        if other == name or lo[2] >= bottom - 1e-6 or hi[2] < bottom - config.max_gap:
+            continue
+        locations, ray_index, tri = intersectors[other].intersects_location(origins, directions)
+        if len(ray_index) == 0:
+            continue
+        ok = (tms[other].face_normals[tri, 2] > 0.0) & (locations[:, 2] >= bottom - config.max_gap)
+        for r, z in zip(ray_index[ok], locations[ok, 2], strict=True):
+            if z > best[r]:
+                best[r], owner[r] = z, other
+    votes: dict[str, int] = {}
+    for o in owner[owner != ""]:
+        votes[o] = votes.get(o, 0) + 1
+    return votes
 
 
 def _sample(tm, count: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:  # noqa: ANN001

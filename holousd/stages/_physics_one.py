@@ -10,9 +10,12 @@ objects:
    an object touches, not what its overhanging ends lie above).
 3. ``rest``: breadth-first from the room, each object is set onto its support. Under each child resting on a
    support, the support's surface is cut flat at the lowest point of it under the child (at most ``top_depth``
-   below the highest point there, and no deeper than the child can follow), inside the child's footprint (1 cm
-   wider) and no higher than that highest point, and its dents there filled up to that flat surface (a fitted
-   top is a bumpy dome of facets; a wall beside stays);
+   below the highest point there that comes within ``bottom_band`` of the child's underside, and no deeper than
+   the child can follow), inside the child's footprint (1 cm wider) up to ``top_depth`` above that surface or
+   that highest point, and under the child's outline up to ``2 * top_depth`` above its bottom (a lump hidden
+   under its overhang); its dents there are filled up to that flat surface, and where it is open under the
+   child (rays fall through it) the surface is carried over the opening within the support's own top (a
+   fitted top is a bumpy dome of facets, and no camera sees it under what rests on it; a wall beside stays);
    the support's shape is then settled (pass 5) with its decomposition cut along those flat surfaces. Then the
    child's unseen underside is cut flat, ``clearance`` above the higher of the support's mesh and collider under
    it (and under its whole footprint, where its lowest points hang over a lower edge), deep enough for a base
@@ -343,15 +346,16 @@ def _hits_below(body: _Body, support: tuple[np.ndarray, np.ndarray], band: float
     return _first_hits_down(support, origins)[0]
 
 
-def _first_hits_down(mesh: tuple[np.ndarray, np.ndarray], origins: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """([K, 3] first points of ``mesh`` (world) hit by rays cast straight down from ``origins``, [K] the index of
-    the ray each came from)."""
+def _first_hits_down(mesh: tuple[np.ndarray, np.ndarray], origins: np.ndarray,
+                     up: bool = False) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """([K, 3] first points of ``mesh`` (world) hit by rays cast straight down (``up``: up) from ``origins``, [K]
+    the index of the ray each came from)."""
     from trimesh.ray.ray_triangle import RayMeshIntersector
 
     from holousd.graph._relations import _trimesh
 
     hits, rays, _ = RayMeshIntersector(_trimesh(mesh)).intersects_location(
-        origins, np.tile([0.0, 0.0, -1.0], (len(origins), 1)), multiple_hits=False)  # fmt: skip
+        origins, np.tile([0.0, 0.0, 1.0 if up else -1.0], (len(origins), 1)), multiple_hits=False)  # fmt: skip
     return np.asarray(hits, float).reshape(-1, 3), np.asarray(rays, int)
 
 
@@ -404,7 +408,7 @@ def _rest(bodies: dict[str, _Body], relations: Relations, room: tuple[np.ndarray
             # the rest of it, its base was cut there, and its hull overlapped the top and pushed it off)
             start = bottom + 2 * config.top_depth
             parts = _concatenated(support_parts)
-            top = max(_top_under(body, surface, start), _top_under(body, parts, start))
+            top = max(_top_under(body, surface, start, band), _top_under(body, parts, start, band))
             if height < top <= height + config.top_depth:
                 height = top
         base = height + config.clearance
@@ -515,12 +519,17 @@ def _local_plane(pose: Pose, normal: np.ndarray, offset: float) -> tuple[tuple[f
 
 def _flatten_top(parent: _Body, children: list[_Body], config: PhysicsSetupConfig) -> _Body:
     """Cut a support's surface flat under each child resting on it: what of the support stands above the
-    lowest point of its surface under the child (at most ``top_depth`` below the highest point there, and no
-    deeper than the child can follow), inside the child's footprint (1 cm wider) and no higher than that
-    surface's highest point under the child, is cut away from the support's mesh and SDF, and the dents there
-    below that surface are filled up to it (:func:`_filled_up_to`). A fitted top is a bumpy dome of facets, on
-    which a child's flat base would rock; a wall or rim beside the child and a board above it stay (but for what
-    of them lies within 1 cm of the footprint, below that highest point)."""
+    lowest point of its surface under the child (at most ``top_depth`` below the highest point there that comes
+    within ``bottom_band`` of the child's underside, and no deeper than the child can follow), inside the
+    child's footprint (1 cm wider) up to ``top_depth`` above it (or that highest point), and under the child's
+    outline up to ``2 * top_depth`` above the child's bottom, is cut away from the support's mesh and SDF
+    (``cut:top``, ``cut:under``); the dents there below that surface are filled up to it, or where the support
+    is open under the child, the surface carried over the opening (:func:`_filled_up_to`). A fitted top is a
+    bumpy dome of facets, on which a child's flat base would rock; a wall or rim beside the child and a board
+    above it stay (but for what of them lies within 1 cm of the footprint, up to ``top_depth`` above its
+    surface)."""
+    from scipy.spatial import ConvexHull
+
     from holousd.physics import convex_hull
 
     if not children:
@@ -534,15 +543,23 @@ def _flatten_top(parent: _Body, children: list[_Body], config: PhysicsSetupConfi
         # the support's surface under the child's edge, where the child's underside rides up over a bump (its
         # bottom band does not reach there), is the child's too: cut flat with the rest, up to twice top_depth
         # above the child's bottom
-        highest = max(float(hits[:, 2].max()), _top_under(child, body.world(), bottom + 2 * config.top_depth))
+        start = bottom + 2 * config.top_depth
+        highest = max(float(hits[:, 2].max()), _top_under(child, body.world(), start, config.relations.bottom_band))
         # the lowest of the surface under the child (robust to a stray dent), no deeper than the child can follow
         # (half the largest move: its own base cut takes the rest)
         plane = max(float(np.percentile(hits[:, 2], 10)), highest - config.top_depth, bottom - config.max_shift / 2)
         c = child.world()[0]
         lo = np.array([*(c[:, :2].min(axis=0) - 0.01), plane])
-        hi = np.array([*(c[:, :2].max(axis=0) + 0.01), highest + 1e-3])  # no higher: a wall beside stays
+        # bumps in the footprint's corners up to top_depth above the flat surface go with it (a hull spanning
+        # one and the flat surface bridged demo's bowl base 1.6 cm up); a wall beside keeps what stands higher
+        hi = np.array([*(c[:, :2].max(axis=0) + 0.01), max(highest, plane + config.top_depth) + 1e-3])
         corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-        cut = body.minus_convex([convex_hull(corners)], f"cut:top:{child.name}") if highest - plane >= 5e-4 else body
+        cut = body.minus_convex([convex_hull(corners)], f"cut:top:{child.name}")
+        # under the child's outline, up to where the flat top is looked for: hidden under the child (demo's bowl
+        # had a lump of the shelf's fitted back 3 cm up under its rim; it rested against it and tipped)
+        outline = c[:, :2][ConvexHull(c[:, :2]).vertices]
+        column = np.concatenate([np.column_stack([outline, np.full(len(outline), z)]) for z in (plane, start)])
+        cut = cut.minus_convex([convex_hull(column)], f"cut:under:{child.name}")
         cut = _filled_up_to(cut, lo, hi, config.top_depth, f"fill:top:{child.name}")
         if cut is not body:  # flat at `plane` there now: the collider's decomposition cuts along it
             axes = np.eye(3)
@@ -559,9 +576,12 @@ def _concatenated(meshes: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarr
             np.concatenate([np.asarray(f, np.int64) + o for (_, f), o in zip(meshes, offsets, strict=True)]))
 
 
-def _top_under(child: _Body, support: tuple[np.ndarray, np.ndarray], start: float) -> float:
+def _top_under(child: _Body, support: tuple[np.ndarray, np.ndarray], start: float, gap: float) -> float:
     """The highest point of the surface of ``support`` (a world mesh) straight under ``child``'s footprint (its
-    outline seen from above), hit by rays cast down from height ``start``; -inf when none is hit."""
+    outline seen from above) and at most ``gap`` below the child's underside there, hit by rays cast down from
+    height ``start``; -inf when none is hit. What of the support lies further below the child's underside, under a
+    bowl's rim that curves up from its base, holds nothing up (demo's bowl: a lump of the shelf's fitted back 3 cm
+    up under its rim set the flat top, and then the bowl, on a ledge 1.6 cm above the board; it tipped)."""
     from scipy.spatial import ConvexHull, QhullError
 
     c = child.world()[0]
@@ -575,16 +595,23 @@ def _top_under(child: _Body, support: tuple[np.ndarray, np.ndarray], start: floa
     grid = grid[np.all(grid @ edges[:, :2].T + edges[:, 2] <= 1e-12, axis=1)]
     if len(grid) == 0:
         return -np.inf
-    hits = _first_hits_down(support, np.column_stack([grid, np.full(len(grid), start)]))[0]
-    return float(hits[:, 2].max()) if len(hits) else -np.inf
+    hits, rays = _first_hits_down(support, np.column_stack([grid, np.full(len(grid), start)]))
+    if len(hits) == 0:
+        return -np.inf
+    under, up_rays = _first_hits_down(child.world(), np.column_stack([grid, np.full(len(grid), c[:, 2].min() - 1.0)]),
+                                      up=True)  # fmt: skip
+    underside = np.full(len(grid), np.inf)  # no underside hit: nothing of the child above that point
+    underside[up_rays] = under[:, 2]
+    near = hits[:, 2] >= underside[rays] - gap
+    return float(hits[near, 2].max()) if near.any() else -np.inf
 
 
 def _filled_up_to(body: _Body, lo: np.ndarray, hi: np.ndarray, depth: float, edit: str) -> _Body:
     """The body with the dents of its surface inside the box ``lo``-``hi`` (world; ``lo[2]`` the flat surface's
     height) filled up to that surface, in its mesh and SDF: what rests there is seen from above and beside,
-    never under it, and a convex part of the support spans those dents at the surface's height anyway. Only
-    where all of the box's footprint lies on the support, at most ``depth`` below the surface (nothing is added
-    past a top's edge, nor in a hole or down a step)."""
+    never under it, and a convex part of the support spans those dents at the surface's height anyway. Where
+    rays down the box fall through the support or hit deeper than ``depth`` below the surface, the surface is
+    carried over that hole instead, within the support's top around it (:func:`_spanned`)."""
 
     from holousd.physics import convex_hull
 
@@ -592,8 +619,8 @@ def _filled_up_to(body: _Body, lo: np.ndarray, hi: np.ndarray, depth: float, edi
     xs, ys = np.meshgrid(np.linspace(lo[0] + 1e-3, hi[0] - 1e-3, 9), np.linspace(lo[1] + 1e-3, hi[1] - 1e-3, 9))
     origins = np.column_stack([xs.ravel(), ys.ravel(), np.full(xs.size, plane + 0.01)])
     hits, rays = _first_hits_down(body.world(), origins)
-    if len(rays) < len(origins) or hits[:, 2].min() < plane - depth:  # past an edge, over a hole or a step
-        return body
+    if len(rays) < len(origins) or hits[:, 2].min() < plane - depth:  # over a hole, past an edge or a step
+        return _spanned(body, lo, hi, depth, edit)
     deepest = float(hits[:, 2].min())
     if plane - deepest < 5e-4:
         return body
@@ -602,6 +629,58 @@ def _filled_up_to(body: _Body, lo: np.ndarray, hi: np.ndarray, depth: float, edi
     part = convex_hull(corners @ inverse[:3, :3].T + inverse[:3, 3])
     united = _united(body.mesh, [part])
     return body if united is None else body.plus_convex([part], united, edit)
+
+
+def _spanned(body: _Body, lo: np.ndarray, hi: np.ndarray, depth: float, edit: str) -> _Body:
+    """The body with its flat surface at height ``lo[2]`` (world) carried over what is missing of it inside the
+    box ``lo``-``hi`` (a child's footprint), in its mesh and SDF: a slab ``depth`` thick (no lower than 1 mm above
+    the body's bottom) over the box where it lies inside the rectangle, along the body's own axes, of its upward
+    faces at that height (at most ``depth`` below it), and inside its outline seen from above.
+
+    What rests on a support hides the support's top under it from every camera; a fit may leave it open there
+    (hard/shelf's board was fitted as its seen front edge alone under a 20 cm box, which then rested on that edge
+    and tipped back). The surface is carried only within its own extent: a child overhanging a table's edge, or
+    a support's end, still overhangs it, and a step down stays a step."""
+    import manifold3d
+
+    from holousd.geometry._contact import _mesh, _solid
+
+    plane = float(lo[2])
+    world = body.world()[0]
+    bottom = float(world[:, 2].min())
+    floor = max(plane - depth, bottom + 1e-3)
+    if plane - floor < 1e-3:
+        return body
+    faces = body.mesh.faces
+    tri = world[faces]
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    height = tri[:, :, 2].mean(axis=1)
+    level = (normal[:, 2] > 0.9 * np.linalg.norm(normal, axis=1)) & (height >= plane - depth) & (height <= plane + 2e-3)
+    if not level.any():
+        return body
+    local = np.asarray(body.mesh.points, float)
+    top = local[np.unique(faces[level])]  # object coordinates: the axes the fit squared the object to
+    z_lo, z_hi = float(local[:, 2].min()) - 1.0, float(local[:, 2].max()) + 1.0
+    inverse = np.linalg.inv(body.pose.matrix())
+    box = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (floor, plane)])
+    rect = np.array([[x, y, z] for x in (top[:, 0].min(), top[:, 0].max()) for y in (top[:, 1].min(), top[:, 1].max())
+                     for z in (z_lo, z_hi)])  # fmt: skip
+    outline = np.concatenate([np.column_stack([local[:, :2], np.full(len(local), z)]) for z in (z_lo, z_hi)])
+    hull = manifold3d.Manifold.hull_points
+    slab = (hull(np.ascontiguousarray(box @ inverse[:3, :3].T + inverse[:3, 3])) ^ hull(rect)
+            ^ hull(np.ascontiguousarray(outline)))  # fmt: skip
+    if slab.is_empty() or slab.volume() < 1e-7:  # under 0.1 cm^3
+        return body
+    part = _mesh(slab)
+    if _solid(part) is None:
+        return body
+    united = _united(body.mesh, [part])
+    if united is None:
+        return body
+    before, after = _solid((local, faces)), _solid((united.points, united.faces))
+    if before is None or after is None or after.volume() - before.volume() < 1e-7:  # nothing was missing
+        return body
+    return body.plus_convex([part], united, edit.replace("fill:", "span:", 1))
 
 
 def _separate(bodies: dict[str, _Body], relations: Relations, config: PhysicsSetupConfig) -> dict[str, _Body]:
