@@ -66,6 +66,7 @@ def test_a_revisit_waits_for_a_child_the_set_up_cannot_stand_and_a_ramp_still_th
 
     flatten = _search.SearchConfig().support_flatten
     assert flatten == PhysicsSetupConfig().top_depth  # the search predicts the set-up's edit, not another one
+    assert _search.SearchConfig().support_sink == PhysicsSetupConfig().max_shift / 2
     cube = _box((-0.01, -0.01, 0.0), (0.01, 0.01, 0.02))
     facet = ramp(35, 0.05)  # a 1.4 cm high facet of a fitted top under a 2 cm cube: cut flat by the set-up
     assert not static_stability(cube, facet).stands
@@ -93,6 +94,19 @@ def test_a_revisit_waits_for_a_child_the_set_up_cannot_stand_and_a_ramp_still_th
     for degrees in (35, 40):
         assert not static_stability(block, ramp(degrees, 1.0), flatten=flatten).stands, degrees
     assert static_stability(block, ramp(10, 1.0), flatten=flatten).stands
+    # a board the fit left open under a cube (rays fall to the board below): the set-up carries the board's top
+    # over the opening within the board's extent, and the cube stands; past the board's end it does not
+    sink = _search.SearchConfig().support_sink
+    board = trimesh.boolean.difference([trimesh.Trimesh(*_box((-0.3, -0.15, 0.28), (0.3, 0.15, 0.3))),
+                                        trimesh.Trimesh(*_box((-0.05, -0.16, 0.2), (0.05, 0.05, 0.4)))],
+                                       engine="manifold")  # fmt: skip
+    shelf = trimesh.util.concatenate([board, trimesh.Trimesh(*_box((-0.3, -0.15, -0.02), (0.3, 0.15, 0.0)))])
+    holed = (np.asarray(shelf.vertices), np.asarray(shelf.faces))
+    over = _box((-0.04, -0.08, 0.302), (0.04, 0.0, 0.35))  # all of its base over the opening
+    assert not static_stability(over, holed, flatten=flatten).stands
+    assert static_stability(over, holed, flatten=flatten, sink=sink).stands
+    beyond = _box((0.25, -0.05, 0.302), (0.45, 0.05, 0.35))  # centre of mass 5 cm past the board's end
+    assert not static_stability(beyond, holed, flatten=flatten, sink=sink).stands
 
 def test_zbuffer_is_a_ray_cast_through_every_pixel_centre() -> None:
     sphere = trimesh.creation.icosphere(subdivisions=3, radius=0.5)

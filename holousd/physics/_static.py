@@ -76,7 +76,8 @@ def _slope(points: np.ndarray) -> float:
 
 def static_stability(body: Mesh, support: Mesh | float | None, *, friction: float = 0.5,
                      contact_band: float = 0.02, max_gap: float = 0.05, ray_start: float = 0.02,
-                     samples: int = 1500, seed: int = 0, flatten: float = 0.0) -> StaticVerdict:  # fmt: skip
+                     samples: int = 1500, seed: int = 0, flatten: float = 0.0,
+                     sink: float | None = None) -> StaticVerdict:  # fmt: skip
     """Quasi-static verdict of a body (world mesh, closed) resting on ``support`` (a world mesh, a floor height,
     or None: nothing under it).
 
@@ -92,7 +93,13 @@ def static_stability(body: Mesh, support: Mesh | float | None, *, friction: floa
     the support's surface under the body is taken flat (horizontal) at its lowest point there (its 10th
     percentile) but no deeper than ``flatten`` below its highest, and its dents filled up to that height from at
     most ``flatten`` below it, as the one-geometry set-up's ``top_depth`` cuts a fitted top's bumps and fills its
-    dents under what rests on it; what lies deeper (an edge, a gap between boards, most of a long ramp) stays."""
+    dents under what rests on it; and carried over where the support is open under the body (rays fall through
+    it or far deeper), within the rectangle (world axes) of its upward faces within ``flatten`` of that height and
+    within its outline seen from above, as the set-up spans a top the fit left open under what rests on it. What
+    lies deeper past the top's extent (an edge, a gap between boards, most of a long ramp) stays. ``sink``
+    (metres, with ``flatten``): where that flat top would lie more than ``max_gap`` below the body's bottom (every
+    ray under it falls through the support), it lies this far below the bottom instead (the set-up moves a body
+    down onto its support by at most half its ``max_shift``, and takes the flat top no deeper)."""
     from holousd.geometry._contact import area_samples, mass_properties
 
     points, faces = np.asarray(body[0], float), np.asarray(body[1], np.int64)
@@ -129,9 +136,16 @@ def static_stability(body: Mesh, support: Mesh | float | None, *, friction: floa
         if flatten > 0.0 and hit.any():
             highest = float(surface_z[hit].max())
             plane = max(float(np.percentile(surface_z[hit], 10)), highest - flatten)
+            bottom = float(points[:, 2].min())
+            if sink is not None and bottom - plane > max_gap:  # open under the body: the set-up's flat top lies
+                plane = bottom - sink  # no deeper than it can move the body down onto it
             patch = hit & (surface_z >= plane - flatten)  # bumps above the plane cut, dents below it filled
+            # where it is open (rays fall through it or far deeper) over its own top at that height, the set-up
+            # carries the top over the opening
+            patch |= ~patch & _over_own_top(target, low[:, :2], plane - flatten, max(plane + flatten, highest))
             surface_z[patch] = plane
             drop[patch] = low[patch, 2] - plane
+            hit = hit | patch
     if not hit.any():
         return none
     smallest = float(drop[hit].min())
@@ -143,3 +157,24 @@ def static_stability(body: Mesh, support: Mesh | float | None, *, friction: floa
     stands = margin >= 0.0 and slope <= np.degrees(np.arctan(friction))
     return StaticVerdict(stands=bool(stands), margin_m=margin, gap_m=smallest, tilt_deg=slope,
                          contacts=int(touching.sum()))  # fmt: skip
+
+
+def _over_own_top(support, xy: np.ndarray, lowest: float, highest: float) -> np.ndarray:  # noqa: ANN001 - trimesh
+    """[K] whether each point ``xy`` [K, 2] lies inside the rectangle (world axes) of the support's upward faces
+    between heights ``lowest`` and ``highest`` (2 mm above it) and inside the support's outline seen from
+    above."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    tri = np.asarray(support.vertices, float)[np.asarray(support.faces, np.int64)]
+    normal = np.asarray(support.face_normals, float)
+    height = tri[:, :, 2].mean(axis=1)
+    level = (normal[:, 2] > 0.9) & (height >= lowest) & (height <= highest + 2e-3)
+    if not level.any():
+        return np.zeros(len(xy), bool)
+    top = tri[level].reshape(-1, 3)[:, :2]
+    inside = np.all((xy >= top.min(axis=0)) & (xy <= top.max(axis=0)), axis=1)
+    try:
+        edges = ConvexHull(np.asarray(support.vertices, float)[:, :2]).equations  # n . x + d <= 0 inside
+    except QhullError:
+        return np.zeros(len(xy), bool)
+    return inside & np.all(xy @ edges[:, :2].T + edges[:, 2] <= 1e-9, axis=1)

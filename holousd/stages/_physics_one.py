@@ -635,7 +635,8 @@ def _spanned(body: _Body, lo: np.ndarray, hi: np.ndarray, depth: float, edit: st
     """The body with its flat surface at height ``lo[2]`` (world) carried over what is missing of it inside the
     box ``lo``-``hi`` (a child's footprint), in its mesh and SDF: a slab ``depth`` thick (no lower than 1 mm above
     the body's bottom) over the box where it lies inside the rectangle, along the body's own axes, of its upward
-    faces at that height (at most ``depth`` below it), and inside its outline seen from above.
+    faces at that height (within ``depth`` of it: a board 3 mm above the flat top the child's base cut allows),
+    and inside its outline seen from above.
 
     What rests on a support hides the support's top under it from every camera; a fit may leave it open there
     (hard/shelf's board was fitted as its seen front edge alone under a 20 cm box, which then rested on that edge
@@ -655,7 +656,7 @@ def _spanned(body: _Body, lo: np.ndarray, hi: np.ndarray, depth: float, edit: st
     tri = world[faces]
     normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     height = tri[:, :, 2].mean(axis=1)
-    level = (normal[:, 2] > 0.9 * np.linalg.norm(normal, axis=1)) & (height >= plane - depth) & (height <= plane + 2e-3)
+    level = (normal[:, 2] > 0.9 * np.linalg.norm(normal, axis=1)) & (np.abs(height - plane) <= depth)
     if not level.any():
         return body
     local = np.asarray(body.mesh.points, float)

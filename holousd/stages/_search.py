@@ -117,6 +117,10 @@ class SearchConfig:
     """``tree``: try the parent's other candidates when none of a child's stands."""
     friction: float = 0.5
     """Friction coefficient of the quasi-static check (the stability protocol's)."""
+    support_sink: float = 0.005
+    """With ``support_flatten``: the flat top the set-up leaves under a child lies at most this below the
+    child's bottom, metres (half the set-up's ``max_shift``); where the top under it is open (a hole the fit
+    left, rays falling to the board below) the set-up carries it over at that height."""
     support_flatten: float = 0.015
     """A revisit replaces a parent's shape only when no candidate of the child stands on the parent as the
     physics set-up will leave its top: flat under the child where it lies within this of its highest point
@@ -240,7 +244,7 @@ class _Scorer:
             return False  # the floor is flat already: nothing the set-up does changes the verdict
         return static_stability(self._body(world, parent), (parent_mesh.points, parent_mesh.faces),
                                 friction=self.config.friction, seed=self.config.seed,
-                                flatten=self.config.support_flatten).stands  # fmt: skip
+                                flatten=self.config.support_flatten, sink=self.config.support_sink).stands  # fmt: skip
 
     def penetration(self, world: MeshData, parent: str, neighbours: dict[str, MeshData]) -> float:
         """Intersection volume, cm^3, of a world mesh with its parent above its base band and the neighbours."""
