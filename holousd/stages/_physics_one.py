@@ -25,7 +25,7 @@ objects:
    where it was seen, and the refused move recorded). Whatever of the support's collider still lies inside the
    child is cut away from the child's mesh and SDF. Children follow their parent's moves.
 4. ``separate``: neighbours whose meshes still overlap are cut apart at the middle of the overlap, across its
-   thinnest axis, as two real objects meet at one face.
+   thinnest axis, within the overlap's bounds (1 cm wider), as two real objects meet at one face.
 5. ``shape``: the convex hull of the mesh is the collider when it reaches at most ``hull_tolerance`` outside
    it (at most ``convexify``: the mesh and SDF then become the hull, a lumpy book or ball fitted on coarse
    cells) and enters none of the objects around it; else a decomposition of that mesh
@@ -229,12 +229,13 @@ class _Body:
         return replace(self, mesh=MeshData(points=points, faces=faces), sdf=sdf, edits=(*self.edits, edit),
                        collider=None)
 
-    def minus_convex(self, parts: list[tuple[np.ndarray, np.ndarray]], edit: str) -> _Body:
+    def minus_convex(self, parts: list[tuple[np.ndarray, np.ndarray]], edit: str, *, min_keep: float = 0.5) -> _Body:
         """The body with whatever of the convex world-space ``parts`` (another object's collider) lies inside it
-        removed from its mesh and SDF."""
+        removed from its mesh and SDF; unchanged when less than ``min_keep`` of it would be left or it would fall
+        apart."""
         inverse = np.linalg.inv(self.pose.matrix())
         local = [(p @ inverse[:3, :3].T + inverse[:3, 3], f) for p, f in parts]
-        (points, faces), removed = subtract((self.mesh.points, self.mesh.faces), local)
+        (points, faces), removed = subtract((self.mesh.points, self.mesh.faces), local, min_keep=min_keep)
         if removed <= 0:
             return self
         sdf = self.sdf
@@ -686,7 +687,11 @@ def _spanned(body: _Body, lo: np.ndarray, hi: np.ndarray, depth: float, edit: st
 
 def _separate(bodies: dict[str, _Body], relations: Relations, config: PhysicsSetupConfig) -> dict[str, _Body]:
     """Cut apart neighbours (not parent and child) whose meshes overlap, at the middle of the overlap across
-    its thinnest axis; each keeps its own side."""
+    its thinnest axis, within the overlap's bounds (1 cm wider); each keeps its own side."""
+    import manifold3d
+
+    from holousd.geometry._contact import _mesh
+
     out = dict(bodies)
     names = sorted(out)
     family = {n: {relations.support.get(n)} | set(relations.children(n)) for n in names}
@@ -699,11 +704,19 @@ def _separate(bodies: dict[str, _Body], relations: Relations, config: PhysicsSet
                 continue
             direction = both.thin_axis if both.thin_axis is not None else np.eye(3)[int(np.argmin(both.hi - both.lo))]
             mid = float(direction @ (both.lo + both.hi) / 2)
+            lo, hi = both.lo - 0.01, both.hi + 0.01
+            box = manifold3d.Manifold.hull_points(np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                                                            for z in (lo[2], hi[2])], np.float64))  # fmt: skip
             for name, other in ((a, b), (b, a)):
                 centre = mass_properties(out[name].world(), 1.0).center_of_mass
                 side = 1.0 if float(direction @ centre) >= mid else -1.0
-                out[name] = out[name].cut(side * direction, side * mid + config.clearance / 2, f"cut:neighbour:{other}",
-                                          min_keep=1.0 - config.max_separation_loss)  # fmt: skip
+                # what of the overlap's bounds lies on the other's side: a plane through the whole object took
+                # bench_04's table top from under the box on it, to free a chair's leg from the table's
+                beyond = box.trim_by_plane(tuple(-side * direction), -(side * mid + config.clearance / 2))
+                if beyond.is_empty():
+                    continue
+                out[name] = out[name].minus_convex([_mesh(beyond)], f"cut:neighbour:{other}",
+                                                   min_keep=1.0 - config.max_separation_loss)  # fmt: skip
     return out
 
 
