@@ -558,9 +558,10 @@ def _flatten_top(parent: _Body, children: list[_Body], config: PhysicsSetupConfi
         cut = body.minus_convex([convex_hull(corners)], f"cut:top:{child.name}")
         # under the child's outline, up to where the flat top is looked for: hidden under the child (demo's bowl
         # had a lump of the shelf's fitted back 3 cm up under its rim; it rested against it and tipped)
-        outline = c[:, :2][ConvexHull(c[:, :2]).vertices]
-        column = np.concatenate([np.column_stack([outline, np.full(len(outline), z)]) for z in (plane, start)])
-        cut = cut.minus_convex([convex_hull(column)], f"cut:under:{child.name}")
+        if start - plane > 1e-3:  # (a child sunk 3 cm into its support has nothing hidden under it above that)
+            outline = c[:, :2][ConvexHull(c[:, :2]).vertices]
+            column = np.concatenate([np.column_stack([outline, np.full(len(outline), z)]) for z in (plane, start)])
+            cut = cut.minus_convex([convex_hull(column)], f"cut:under:{child.name}")
         cut = _filled_up_to(cut, lo, hi, config.top_depth, f"fill:top:{child.name}")
         if cut is not body:  # flat at `plane` there now: the collider's decomposition cuts along it
             axes = np.eye(3)
