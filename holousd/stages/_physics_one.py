@@ -11,11 +11,12 @@ objects:
 3. ``rest``: breadth-first from the room, each object is set onto its support. Under each child resting on a
    support, the support's surface is cut flat at the lowest point of it under the child (at most ``top_depth``
    below the highest point there that comes within ``bottom_band`` of the child's underside, and no deeper than
-   the child can follow), inside the child's footprint (1 cm wider) up to ``top_depth`` above that surface or
-   that highest point, and under the child's outline up to ``2 * top_depth`` above its bottom (a lump hidden
-   under its overhang); its dents there are filled up to that flat surface, and where it is open under the
-   child (rays fall through it) the surface is carried over the opening within the support's own top (a
-   fitted top is a bumpy dome of facets, and no camera sees it under what rests on it; a wall beside stays);
+   the child can follow), inside the child's footprint (1 cm wider) up to ``top_depth`` above that surface,
+   and under the child's outline up to ``2 * top_depth`` above its bottom (a lump hidden under its overhang);
+   its dents there are filled up to that flat surface, and where it is open under the child (rays fall through
+   to a lower part of it or miss) the surface is carried over the opening within the rectangle of the
+   support's own top at that height (a fitted top is a bumpy dome of facets, and no camera sees it under what
+   rests on it; a wall beside stays);
    the support's shape is then settled (pass 5) with its decomposition cut along those flat surfaces. Then the
    child's unseen underside is cut flat, ``clearance`` above the higher of the support's mesh and collider under
    it (and under its whole footprint, where its lowest points hang over a lower edge), deep enough for a base
@@ -522,14 +523,14 @@ def _flatten_top(parent: _Body, children: list[_Body], config: PhysicsSetupConfi
     """Cut a support's surface flat under each child resting on it: what of the support stands above the
     lowest point of its surface under the child (at most ``top_depth`` below the highest point there that comes
     within ``bottom_band`` of the child's underside, and no deeper than the child can follow), inside the
-    child's footprint (1 cm wider) up to ``top_depth`` above it (or that highest point), and under the child's
+    child's footprint (1 cm wider) up to ``top_depth`` above it, and under the child's
     outline up to ``2 * top_depth`` above the child's bottom, is cut away from the support's mesh and SDF
     (``cut:top``, ``cut:under``); the dents there below that surface are filled up to it, or where the support
     is open under the child, the surface carried over the opening (:func:`_filled_up_to`). A fitted top is a
     bumpy dome of facets, on which a child's flat base would rock; a wall or rim beside the child and a board
     above it stay (but for what of them lies within 1 cm of the footprint, up to ``top_depth`` above its
     surface)."""
-    from scipy.spatial import ConvexHull
+    from scipy.spatial import ConvexHull, QhullError
 
     from holousd.physics import convex_hull
 
@@ -558,8 +559,11 @@ def _flatten_top(parent: _Body, children: list[_Body], config: PhysicsSetupConfi
         cut = body.minus_convex([convex_hull(corners)], f"cut:top:{child.name}")
         # under the child's outline, up to where the flat top is looked for: hidden under the child (demo's bowl
         # had a lump of the shelf's fitted back 3 cm up under its rim; it rested against it and tipped)
-        if start - plane > 1e-3:  # (a child sunk 3 cm into its support has nothing hidden under it above that)
-            outline = c[:, :2][ConvexHull(c[:, :2]).vertices]
+        try:  # (a child sunk 3 cm into its support has nothing hidden under it above that)
+            outline = c[:, :2][ConvexHull(c[:, :2]).vertices] if start - plane > 1e-3 else None
+        except (QhullError, ValueError):  # a degenerate child: no outline to cut under
+            outline = None
+        if outline is not None:
             column = np.concatenate([np.column_stack([outline, np.full(len(outline), z)]) for z in (plane, start)])
             cut = cut.minus_convex([convex_hull(column)], f"cut:under:{child.name}")
         cut = _filled_up_to(cut, lo, hi, config.top_depth, f"fill:top:{child.name}")
@@ -638,7 +642,8 @@ def _spanned(body: _Body, lo: np.ndarray, hi: np.ndarray, depth: float, edit: st
     box ``lo``-``hi`` (a child's footprint), in its mesh and SDF: a slab ``depth`` thick (no lower than 1 mm above
     the body's bottom) over the box where it lies inside the rectangle, along the body's own axes, of its upward
     faces at that height (within ``depth`` of it: a board 3 mm above the flat top the child's base cut allows),
-    and inside its outline seen from above.
+    and inside its outline seen from above. That rectangle and outline are the whole support's: on a top that is
+    not convex (an L-shaped desk, a sink cut-out) a gap under the child's footprint is bridged too.
 
     What rests on a support hides the support's top under it from every camera; a fit may leave it open there
     (hard/shelf's board was fitted as its seen front edge alone under a 20 cm box, which then rested on that edge

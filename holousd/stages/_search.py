@@ -118,9 +118,9 @@ class SearchConfig:
     friction: float = 0.5
     """Friction coefficient of the quasi-static check (the stability protocol's)."""
     support_sink: float = 0.005
-    """With ``support_flatten``: the flat top the set-up leaves under a child lies at most this below the
-    child's bottom, metres (half the set-up's ``max_shift``); where the top under it is open (a hole the fit
-    left, rays falling to the board below) the set-up carries it over at that height."""
+    """With ``support_flatten``: where every ray under a child falls more than ``max_gap`` through its
+    parent's top (a hole the fit left, rays falling to the board below), the flat top the set-up carries over
+    the hole lies this far below the child's bottom, metres (half the set-up's ``max_shift``)."""
     support_flatten: float = 0.015
     """A revisit replaces a parent's shape only when no candidate of the child stands on the parent as the
     physics set-up will leave its top: flat under the child where it lies within this of its highest point
