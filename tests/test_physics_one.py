@@ -639,6 +639,22 @@ def test_a_closed_mesh_stays_closed_when_its_slivers_cannot_go(monkeypatch: pyte
     assert one._drop_degenerate(closed) is closed
 
 
+def _down_onto(scene: SceneGraph, name: str, xs: np.ndarray, ys: np.ndarray, z: float = 0.52):  # noqa: ANN202
+    """Rays straight down from the grid ``xs`` x ``ys`` at height ``z`` onto an object's rendered mesh and onto its
+    collider: (its collider's parts as world trimeshes, [(hits [K, 3], rays that hit [K]) for the mesh, then the
+    collider], rays cast)."""
+    gx, gy = np.meshgrid(xs, ys)
+    origins = np.column_stack([gx.ravel(), gy.ravel(), np.full(gx.size, z)])
+    down = np.tile([0.0, 0.0, -1.0], (len(origins), 1))
+    pose = scene.get_pose(name)
+    parts = [trimesh.Trimesh(pose.apply(p.points), p.faces, process=False) for p in scene.get_collider(name).parts]
+    found = []
+    for surface in (trimesh.Trimesh(*_world_mesh(scene, name), process=False), trimesh.util.concatenate(parts)):
+        hits, rays, _ = surface.ray.intersects_location(origins, down, multiple_hits=False)
+        found.append((hits, rays))
+    return parts, found, len(origins)
+
+
 def test_a_support_is_flat_under_its_child_in_mesh_and_collider(tmp_path: Path) -> None:
     """A fitted top has dents and bumps where nothing saw it (under what stands on it). Under the child the top
     ends flat, in its mesh (the dent filled up to the flat surface) and in its collider: the rim of matter
@@ -653,16 +669,9 @@ def test_a_support_is_flat_under_its_child_in_mesh_and_collider(tmp_path: Path) 
     scene = _scene(tmp_path, objects)
     rec = _records(setup_physics(scene, PhysicsSetupConfig()))
     assert rec["book"].parent == "table" and "fill:top:book" in rec["table"].edits, rec["table"]
-    xs, ys = np.meshgrid(np.linspace(-0.09, 0.09, 7), np.linspace(-0.09, 0.09, 7))
-    origins = np.column_stack([xs.ravel(), ys.ravel(), np.full(xs.size, 0.52)])
-    down = np.tile([0.0, 0.0, -1.0], (len(origins), 1))
-    mesh = trimesh.Trimesh(*_world_mesh(scene, "table"), process=False)
-    pose = scene.get_pose("table")
-    parts = [trimesh.Trimesh(pose.apply(p.points), p.faces, process=False) for p in scene.get_collider("table").parts]
-    collider = trimesh.util.concatenate(parts)
-    for surface in (mesh, collider):
-        hits, rays, _ = surface.ray.intersects_location(origins, down, multiple_hits=False)
-        assert len(rays) == len(origins) and np.ptp(hits[:, 2]) < 1e-3, np.round(hits[:, 2], 4)
+    _, found, cast = _down_onto(scene, "table", np.linspace(-0.09, 0.09, 7), np.linspace(-0.09, 0.09, 7))
+    for hits, rays in found:  # the mesh, then the collider
+        assert len(rays) == cast and np.ptp(hits[:, 2]) < 1e-3, np.round(hits[:, 2], 4)
         assert abs(hits[:, 2].max() - 0.5) < 1e-3, rec["table"]
     book = _world(scene, "book")
     assert 0.5005 < book[:, 2].min() <= 0.502  # on it (the collider's cut lies half a millimetre above the surface)
@@ -683,14 +692,10 @@ def test_a_bump_under_a_childs_edge_is_cut_with_the_rest_of_its_patch(tmp_path: 
     scene = _scene(tmp_path, objects)
     rec = _records(setup_physics(scene, PhysicsSetupConfig()))
     assert rec["box"].parent == "table" and "cut:top:box" in rec["table"].edits, rec["table"]
-    xs, ys = np.meshgrid(np.linspace(-0.04, 0.04, 5), np.linspace(0.065, 0.095, 5))  # over the bump, under the box
-    origins = np.column_stack([xs.ravel(), ys.ravel(), np.full(xs.size, 0.52)])
-    down = np.tile([0.0, 0.0, -1.0], (len(origins), 1))
-    pose = scene.get_pose("table")
-    parts = [trimesh.Trimesh(pose.apply(p.points), p.faces, process=False) for p in scene.get_collider("table").parts]
-    for surface in (trimesh.Trimesh(*_world_mesh(scene, "table"), process=False), trimesh.util.concatenate(parts)):
-        hits, rays, _ = surface.ray.intersects_location(origins, down, multiple_hits=False)
-        assert len(rays) == len(origins) and hits[:, 2].max() < 0.5 + 1e-3, np.round(hits[:, 2], 4)
+    # over the bump, under the box
+    parts, found, cast = _down_onto(scene, "table", np.linspace(-0.04, 0.04, 5), np.linspace(0.065, 0.095, 5))
+    for hits, rays in found:  # the mesh, then the collider
+        assert len(rays) == cast and hits[:, 2].max() < 0.5 + 1e-3, np.round(hits[:, 2], 4)
     box_pose = scene.get_pose("box")
     box_parts = [(box_pose.apply(p.points), p.faces) for p in scene.get_collider("box").parts]
     worst = max(overlap(a, (b.vertices, b.faces)).volume_m3 for a in box_parts for b in parts)
@@ -711,14 +716,10 @@ def test_a_support_left_open_under_its_child_is_spanned_within_its_own_top(tmp_p
     scene = _scene(tmp_path, objects)
     rec = _records(setup_physics(scene, PhysicsSetupConfig()))
     assert rec["box"].parent == "cabinet" and "span:top:box" in rec["cabinet"].edits, rec["cabinet"]
-    xs, ys = np.meshgrid(np.linspace(-0.08, 0.08, 5), np.linspace(-0.05, 0.09, 5))  # over the pit, under the box
-    origins = np.column_stack([xs.ravel(), ys.ravel(), np.full(xs.size, 0.52)])
-    down = np.tile([0.0, 0.0, -1.0], (len(origins), 1))
-    pose = scene.get_pose("cabinet")
-    parts = [trimesh.Trimesh(pose.apply(p.points), p.faces, process=False) for p in scene.get_collider("cabinet").parts]
-    for surface in (trimesh.Trimesh(*_world_mesh(scene, "cabinet"), process=False), trimesh.util.concatenate(parts)):
-        hits, rays, _ = surface.ray.intersects_location(origins, down, multiple_hits=False)
-        assert len(rays) == len(origins) and np.all(np.abs(hits[:, 2] - 0.5) < 2e-3), np.round(hits[:, 2], 4)
+    # over the pit, under the box
+    _, found, cast = _down_onto(scene, "cabinet", np.linspace(-0.08, 0.08, 5), np.linspace(-0.05, 0.09, 5))
+    for hits, rays in found:  # the mesh, then the collider
+        assert len(rays) == cast and np.all(np.abs(hits[:, 2] - 0.5) < 2e-3), np.round(hits[:, 2], 4)
     # the pit past the box stays open: the span covers the box's footprint (1 cm wider) and no more
     hits, rays, _ = trimesh.Trimesh(*_world_mesh(scene, "cabinet"), process=False).ray.intersects_location(
         [[0.0, 0.17, 0.52]], [[0.0, 0.0, -1.0]], multiple_hits=False)

@@ -604,8 +604,8 @@ def _top_under(child: _Body, support: tuple[np.ndarray, np.ndarray], start: floa
     hits, rays = _first_hits_down(support, np.column_stack([grid, np.full(len(grid), start)]))
     if len(hits) == 0:
         return -np.inf
-    under, up_rays = _first_hits_down(child.world(), np.column_stack([grid, np.full(len(grid), c[:, 2].min() - 1.0)]),
-                                      up=True)  # fmt: skip
+    below = np.column_stack([grid, np.full(len(grid), c[:, 2].min() - 1.0)])
+    under, up_rays = _first_hits_down((c, child.mesh.faces), below, up=True)
     underside = np.full(len(grid), np.inf)  # no underside hit: nothing of the child above that point
     underside[up_rays] = under[:, 2]
     near = hits[:, 2] >= underside[rays] - gap
