@@ -215,3 +215,41 @@ def test_an_instance_extent_ignores_points_no_other_frame_confirms() -> None:
     assert len(kept) == 1200 and kept.min(axis=0)[2] >= 0.7
     # an object seen in one frame only keeps all its points
     assert len(confirmed_points(box[0], np.zeros(300, int), 0.02)) == 300
+
+
+def test_an_instance_extent_drops_a_fragment_two_frames_share_that_the_others_see_as_the_room(tmp_path: Path) -> None:
+    from holousd.geometry import Views, confirmed_points, object_points
+
+    generate_suite("hard", tmp_path, SynthConfig(frames=24, width=96, height=72, progress=False), scenes=["stack"])
+    obs = load(tmp_path / "stack")
+    labels = np.stack([obs.mask(i) for i in range(len(obs))]).astype(np.int32)
+    depth = np.stack([obs.depth(i) for i in range(len(obs))]).astype(np.float32)
+    views = Views(intrinsics=obs.intrinsics, poses=obs.poses, labels=labels, depth=depth)
+    ids, counts = np.unique(labels[labels > 0], return_counts=True)
+    k = int(ids[np.argmin(counts)])  # the smallest object: a few hundred points, as a mug on a phone's depth
+    frames = [i for i in range(len(obs)) if (labels[i] == k).sum() > 0]
+
+    def cloud() -> tuple[np.ndarray, np.ndarray]:
+        pts = [views.backproject(i, (views.labels[i] == k) & (depth[i] > 0)) for i in frames]
+        return np.concatenate(pts), np.concatenate([np.full(len(p), i) for i, p in zip(frames, pts, strict=True)])
+
+    clean, frame = cloud()
+    kept = object_points(clean, frame, 0.02, views, k, range(len(obs)))
+    assert len(kept) >= 0.99 * len(clean)  # exact masks: the object's points stay
+    # a segmenter's blob on the room, the same spot of the wall in two neighbouring frames that see the object
+    a, b = frames[len(frames) // 2], frames[len(frames) // 2 + 1]
+    room = np.argwhere((labels[a] == 0) & (depth[a] > 0))
+    pixel = np.zeros(labels[a].shape, bool)
+    pixel[tuple(room[len(room) // 3])] = True
+    spot = views.backproject(a, pixel)
+    for i in (a, b):
+        row, col, _, valid = views.project(i, spot)
+        assert valid.all()
+        views.labels[i][max(0, row[0] - 1) : row[0] + 2, max(0, col[0] - 1) : col[0] + 2] = k
+    noisy, frame = cloud()
+    assert len(noisy) > len(clean) + 6
+    assert len(confirmed_points(noisy, frame, 0.02)) >= len(clean) + 6  # the two frames confirm each other
+    kept = object_points(noisy, frame, 0.02, views, k, range(len(obs)))
+    lo, hi = clean.min(axis=0) - 0.04, clean.max(axis=0) + 0.04
+    assert np.all((kept >= lo) & (kept <= hi))  # the fragment is gone: the other frames see the wall there
+    assert len(kept) >= 0.99 * len(clean)

@@ -11,6 +11,7 @@ from holousd.geometry._grid import (
     confirmed_points,
     fuse_tsdf,
     label_consensus,
+    object_points,
     sample_grid,
     signed_distance_from_occupancy,
 )
@@ -32,6 +33,7 @@ __all__ = [
     "fuse_tsdf",
     "label_consensus",
     "mesh_from_sdf",
+    "object_points",
     "plane_decomposition",
     "point_triangle_distance",
     "sample_grid",

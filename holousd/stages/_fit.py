@@ -56,9 +56,9 @@ from holousd.geometry._grid import (
     VoxelGrid,
     box_sdf,
     carve_hull,
-    confirmed_points,
     fuse_tsdf,
     label_consensus,
+    object_points,
     observed_fraction,
     sample_grid,
     signed_distance_from_occupancy,
@@ -438,11 +438,12 @@ def _extents_metric(frames: _Frames, fusion: np.ndarray, ids: list[int]) -> dict
     for k in ids:
         if not clouds[k]:
             continue
-        # a segmenter's false fragment or a return from behind a silhouette is in one frame only, and a few of them
-        # set a small object's extent (the demo's plate reached 1.7 m across the room on a phone capture)
+        # a segmenter's false fragment or a return from behind a silhouette is in one frame only (or two), and a few
+        # of them set a small object's extent (the phone demo's plate reached 1.7 m across the room, its mug 1.8 m)
         median_depth = float(np.median(np.concatenate(depths[k])))
         footprint = median_depth / float(np.mean(views.intrinsics[:, [0, 1], [0, 1]]))
-        cloud = confirmed_points(np.concatenate(clouds[k]), np.concatenate(owners[k]), max(0.02, 3.0 * footprint))
+        cloud = object_points(np.concatenate(clouds[k]), np.concatenate(owners[k]), max(0.02, 3.0 * footprint),
+                              views, k, fusion)  # fmt: skip
         lo, hi = np.percentile(cloud, 0.2, axis=0), np.percentile(cloud, 99.8, axis=0)
         # downwards, all but stray points: the lowest 0.2% of a table's points lie 7 cm above the floor (its
         # legs' feet are seen in few frames, 95 of 72k points below 5 cm on hard/stack), and the extent cut them
