@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import os
+import sys
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
@@ -154,6 +155,10 @@ def simulate_model(
             break
         if progress is not None and ((i + 1) % report_every == 0 or i + 1 == steps):
             progress((i + 1) / steps)
+    if stepper.dropped_contacts:
+        print(f"warning: {pm.source}: {cfg.solver.name} dropped contacts on {stepper.dropped_contacts} steps (its "
+              f"arena of {cfg.solver.mujoco_arena_mb} MiB is full): bodies may fall through their supports; raise "
+              "SolverConfig.mujoco_arena_mb", file=sys.stderr)  # fmt: skip
     if not np.all(np.isfinite(samples)):
         raise PhysicsInputError(
             f"{pm.source}: the simulation diverged (non-finite poses); check masses, scales and overlapping colliders"
