@@ -456,3 +456,18 @@ def test_mujoco_gets_an_arena_that_holds_a_decomposed_scene_contacts() -> None:
         stepper.step(1.0 / 240.0)
     assert stepper.dropped_contacts == 0 and np.allclose(stepper.body_q[:, 2], z0, atol=2e-3)
     assert make_stepper(pm, SolverConfig(name="xpbd")).dropped_contacts == 0
+    import mujoco
+
+    from holousd.physics._solvers import _arena
+
+    # the counter reads MuJoCo's own overflow warnings (contacts, and the constraints that hold them)
+    warning = stepper._solver.mj_data.warning
+    warning[int(mujoco.mjtWarning.mjWARN_CONTACTFULL)].number = 2
+    warning[int(mujoco.mjtWarning.mjWARN_CNSTRFULL)].number = 1
+    assert stepper.dropped_contacts == 3
+    # the arena is given only while a solver is built: MuJoCo's compile is its own again, after an error too
+    original = mujoco.MjSpec.compile
+    with pytest.raises(RuntimeError), _arena(1.0):
+        assert mujoco.MjSpec.compile is not original
+        raise RuntimeError("a solver that fails to build")
+    assert mujoco.MjSpec.compile is original

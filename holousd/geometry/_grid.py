@@ -465,11 +465,12 @@ def object_points(cloud: np.ndarray, frame: np.ndarray, radius: float, views: Vi
                   tol_rel: float = 0.02) -> np.ndarray:  # fmt: skip
     """The points of instance ``label``'s back-projected cloud ([P, 3], with the [P] frame each came from) that
     belong to it: those another frame confirms (:func:`confirmed_points`), then of the pieces they fall into
-    (points linked when within about ``radius``) all but the small ones few frames see that the others
+    (points half a ``radius`` apart always linked, up to 1.7 ``radius`` apart sometimes: cells of half a radius
+    joined to their 26 neighbours) all but the small ones few frames see that the others
     contradict: a piece holding less than ``min_share`` of the points, seen in fewer than ``min_frames`` frames
     and reaching more than ``2 * radius`` outside the bounds of the rest, goes when of the frames ``check`` that
     see its points (their depth within ``tol_m + tol_rel * z`` of the point's, or beyond it: seen through), more
-    show another label there or see through it than show the object.
+    of those (point, frame) pairs show another label there or see through it than show the object.
 
     A segmenter's false fragments fall on the same wall or panel in two neighbouring frames often enough to
     confirm each other (the phone demo's mug: 3 wall points 2 m away in 338; its bowl: two strips of the shelf's
@@ -482,8 +483,10 @@ def object_points(cloud: np.ndarray, frame: np.ndarray, radius: float, views: Vi
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
+    if views.depth is None:
+        raise ValueError("object_points needs metric depth")
     keep = _confirmed(cloud, frame, radius)
-    pts, frm = cloud[keep], frame[keep]
+    pts, frm = cloud[keep], np.asarray(frame)[keep].astype(np.int64)
     if len(pts) < 2:
         return pts
     cell = radius / 2.0  # cells linked with their 26 neighbours: points up to 1.7 * radius apart join
@@ -505,13 +508,12 @@ def object_points(cloud: np.ndarray, frame: np.ndarray, radius: float, views: Vi
     r, c = np.concatenate(rows), np.concatenate(cols)
     count, piece_of_cell = connected_components(
         coo_matrix((np.ones(len(r), np.int8), (r, c)), shape=(len(cells),) * 2), directed=False)
-    piece = piece_of_cell[inv]
+    piece = piece_of_cell[inv].astype(np.int64)
     size = np.bincount(piece, minlength=count)
     span = int(frm.max()) + 1
     seen = np.bincount(np.unique(piece * span + frm) // span, minlength=count)  # frames per piece
     wanted = (size >= min_share * len(pts)) | (seen >= min_frames)
     wanted[np.argmax(size)] = True
-    assert views.depth is not None
     body = pts[wanted[piece]]
     lo, hi = body.min(axis=0) - 2.0 * radius, body.max(axis=0) + 2.0 * radius
     for p in np.flatnonzero(~wanted):

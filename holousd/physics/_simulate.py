@@ -156,7 +156,7 @@ def simulate_model(
         if progress is not None and ((i + 1) % report_every == 0 or i + 1 == steps):
             progress((i + 1) / steps)
     if stepper.dropped_contacts:
-        print(f"warning: {pm.source}: {cfg.solver.name} dropped contacts on {stepper.dropped_contacts} steps (its "
+        print(f"warning: {pm.source}: {cfg.solver.name} dropped contacts {stepper.dropped_contacts} times (its "
               f"arena of {cfg.solver.mujoco_arena_mb} MiB is full): bodies may fall through their supports; raise "
               "SolverConfig.mujoco_arena_mb", file=sys.stderr)  # fmt: skip
     if not np.all(np.isfinite(samples)):

@@ -9,6 +9,7 @@ solver. Sharing nothing but the imported model, the two make an independent cros
 from __future__ import annotations
 
 import contextlib
+import threading
 import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -35,11 +36,11 @@ class SolverConfig:
     """XPBD constraint iterations per step (MuJoCo uses its own defaults)."""
     mujoco_arena_mb: float = 256.0
     """MuJoCo (CPU): the arena that holds each step's contacts, constraints and solver scratch, MiB (allocated
-    once). MuJoCo's own default, 13 MiB, holds some ten thousand contacts; a scene of decomposed colliders makes
-    more (the phone demo: 30-160 parts per object, 25 thousand contacts), MuJoCo then drops contacts every step
-    ('Too many contacts') and bodies fall through what holds them (the phone demo's ball 78 cm through the
-    cabinet's top: a verdict on the buffer, not on the scene). Contacts still dropped are reported
-    (:attr:`Stepper.dropped_contacts`)."""
+    once). MuJoCo's own default, 13 MiB, holds some ten thousand contacts and their constraints; a scene of
+    decomposed colliders makes more (the phone demo: 30-160 parts per object, 25 thousand contacts), MuJoCo then
+    drops contacts every step ('Too many contacts') and bodies fall through what holds them (the phone demo's
+    ball 78 cm through the cabinet's top: a verdict on the buffer, not on the scene). Contacts still dropped are
+    reported (:attr:`Stepper.dropped_contacts`)."""
 
 
 class Stepper:
@@ -88,13 +89,15 @@ class Stepper:
 
     @property
     def dropped_contacts(self) -> int:
-        """Steps on which MuJoCo (CPU) ran out of arena and dropped contacts so far (0 for XPBD)."""
-        data = getattr(self._solver, "mj_data", None) if self.name == "mujoco" else None
-        if data is None:
+        """Times MuJoCo (CPU) ran out of arena so far and dropped contacts or their constraints (each step it does
+        counts; a constraint overflow drops every contact of that step); 0 for XPBD and MuJoCo Warp."""
+        if self.name != "mujoco" or not getattr(self._solver, "use_mujoco_cpu", False):
             return 0
         import mujoco
 
-        return int(data.warning[int(mujoco.mjtWarning.mjWARN_CONTACTFULL)].number)
+        warning = self._solver.mj_data.warning
+        return int(warning[int(mujoco.mjtWarning.mjWARN_CONTACTFULL)].number
+                   + warning[int(mujoco.mjtWarning.mjWARN_CNSTRFULL)].number)  # fmt: skip
 
     @property
     def body_q(self) -> np.ndarray:
@@ -150,6 +153,9 @@ class Stepper:
             array.assign(values)
 
 
+_ARENA_LOCK = threading.Lock()
+
+
 @contextlib.contextmanager
 def _arena(mb: float) -> Iterator[None]:
     """MuJoCo models compiled within get an arena of ``mb`` MiB where their spec leaves it to MuJoCo (Newton
@@ -163,11 +169,12 @@ def _arena(mb: float) -> Iterator[None]:
             spec.memory = int(mb * 1024 * 1024)
         return compile_(spec, *args, **kwargs)
 
-    mujoco.MjSpec.compile = compile_with_arena
-    try:
-        yield
-    finally:
-        mujoco.MjSpec.compile = compile_
+    with _ARENA_LOCK:  # two threads building solvers at once must not keep each other's patch
+        mujoco.MjSpec.compile = compile_with_arena
+        try:
+            yield
+        finally:
+            mujoco.MjSpec.compile = compile_
 
 
 def make_stepper(pm: PhysicsModel, config: SolverConfig | None = None) -> Stepper:
