@@ -162,14 +162,14 @@ def _arena(mb: float) -> Iterator[None]:
     builds and compiles the spec inside :class:`newton.solvers.SolverMuJoCo` and exposes no memory setting)."""
     import mujoco
 
-    compile_ = mujoco.MjSpec.compile
-
-    def compile_with_arena(spec, *args, **kwargs):  # noqa: ANN001, ANN002, ANN003, ANN202
-        if spec.memory == -1:
-            spec.memory = int(mb * 1024 * 1024)
-        return compile_(spec, *args, **kwargs)
-
     with _ARENA_LOCK:  # two threads building solvers at once must not keep each other's patch
+        compile_ = mujoco.MjSpec.compile
+
+        def compile_with_arena(spec, *args, **kwargs):  # noqa: ANN001, ANN002, ANN003, ANN202
+            if spec.memory == -1:
+                spec.memory = int(mb * 1024 * 1024)
+            return compile_(spec, *args, **kwargs)
+
         mujoco.MjSpec.compile = compile_with_arena
         try:
             yield
