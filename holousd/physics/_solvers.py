@@ -64,6 +64,8 @@ class Stepper:
         self._control = model.control()
         self._pipeline = None
         self._contacts = None
+        self.contact_growths = 0
+        """XPBD: times a step filled the contact buffer and it was doubled (see :meth:`step`); 0 for MuJoCo."""
         if config.name == "xpbd":
             restitution = any(m.restitution > 0.0 for m in pm.materials.values())
             self._solver = newton.solvers.SolverXPBD(
@@ -71,8 +73,6 @@ class Stepper:
             )
             self._pipeline = newton.CollisionPipeline(model)
             self._contacts = self._pipeline.contacts()
-            self.contact_growths = 0
-            """Times the contact buffer was doubled (a step found more contacts than it holds)."""
         else:
             with warnings.catch_warnings():
                 # Newton 1.8 pins mujoco ~=3.17 in metadata but runs with the installed 4.0; the warning is noise.
