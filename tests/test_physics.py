@@ -471,6 +471,11 @@ def test_mujoco_gets_an_arena_that_holds_a_decomposed_scene_contacts() -> None:
         assert mujoco.MjSpec.compile is not original
         raise RuntimeError("a solver that fails to build")
     assert mujoco.MjSpec.compile is original
+    # an arena too small for MuJoCo's own stack is a one-line error naming the setting, not a FatalError
+    tiny = make_stepper(pm, SolverConfig(name="mujoco", mujoco_arena_mb=0.02))
+    with pytest.raises(physics.PhysicsInputError, match="mujoco_arena_mb"):
+        for _ in range(4):
+            tiny.step(1.0 / 240.0)
 
 
 def test_xpbd_doubles_its_contact_buffer_when_a_step_finds_more_contacts() -> None:

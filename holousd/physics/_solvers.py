@@ -64,6 +64,7 @@ class Stepper:
         self._control = model.control()
         self._pipeline = None
         self._contacts = None
+        self._arena_mb = config.mujoco_arena_mb
         self.contact_growths = 0
         """XPBD: times a step filled the contact buffer and it was doubled (see :meth:`step`); 0 for MuJoCo."""
         if config.name == "xpbd":
@@ -160,7 +161,18 @@ class Stepper:
                 self._contacts = self._pipeline.contacts()
                 self.contact_growths += 1
                 self._pipeline.collide(self._state_0, self._contacts)
-        self._solver.step(self._state_0, self._state_1, self._control, self._contacts, dt)
+        if self.name == "mujoco":
+            import mujoco
+
+            try:
+                self._solver.step(self._state_0, self._state_1, self._control, self._contacts, dt)
+            except mujoco.FatalError as exc:  # its stack lives in the arena: too small a one ends the run
+                raise PhysicsInputError(
+                    f"{self.pm.source}: MuJoCo ran out of its {self._arena_mb:g} MiB arena "
+                    f"({str(exc).splitlines()[0]}); raise SolverConfig.mujoco_arena_mb"
+                ) from exc
+        else:
+            self._solver.step(self._state_0, self._state_1, self._control, self._contacts, dt)
         self._state_0, self._state_1 = self._state_1, self._state_0
 
     @staticmethod
