@@ -149,14 +149,22 @@ def test_unknown_sensor_is_refused_before_anything_is_written(tmp_path: Path) ->
     assert not (tmp_path / "x" / "stack").exists()
 
 
-def test_label_consensus_repairs_fragments_and_lost_objects_and_leaves_exact_masks(tmp_path: Path) -> None:
-    from holousd.geometry import Views, label_consensus
+def _stack_capture(tmp_path: Path):  # noqa: ANN202 - (Observations, Views)
+    """hard/stack rendered small (24 frames at 96x72, exact masks and depth) and its frames as Views."""
+    from holousd.geometry import Views
 
     generate_suite("hard", tmp_path, SynthConfig(frames=24, width=96, height=72, progress=False), scenes=["stack"])
     obs = load(tmp_path / "stack")
-    truth = np.stack([obs.mask(i) for i in range(len(obs))]).astype(np.int32)
+    labels = np.stack([obs.mask(i) for i in range(len(obs))]).astype(np.int32)
     depth = np.stack([obs.depth(i) for i in range(len(obs))]).astype(np.float32)
-    views = Views(intrinsics=obs.intrinsics, poses=obs.poses, labels=truth, depth=depth)
+    return obs, Views(intrinsics=obs.intrinsics, poses=obs.poses, labels=labels, depth=depth)
+
+
+def test_label_consensus_repairs_fragments_and_lost_objects_and_leaves_exact_masks(tmp_path: Path) -> None:
+    from holousd.geometry import Views, label_consensus
+
+    obs, views = _stack_capture(tmp_path)
+    truth, depth = views.labels.copy(), views.depth
     labels, _, stats = label_consensus(views)
     assert (labels != truth).mean() < 0.002, stats  # exact masks: only a few boundary pixels move
     assert stats.checked > 0.3 * (depth > 0).sum()  # most pixels are seen by two neighbours away from their edges
@@ -218,13 +226,10 @@ def test_an_instance_extent_ignores_points_no_other_frame_confirms() -> None:
 
 
 def test_an_instance_extent_drops_a_fragment_two_frames_share_that_the_others_see_as_the_room(tmp_path: Path) -> None:
-    from holousd.geometry import Views, confirmed_points, object_points
+    from holousd.geometry import confirmed_points, object_points
 
-    generate_suite("hard", tmp_path, SynthConfig(frames=24, width=96, height=72, progress=False), scenes=["stack"])
-    obs = load(tmp_path / "stack")
-    labels = np.stack([obs.mask(i) for i in range(len(obs))]).astype(np.int32)
-    depth = np.stack([obs.depth(i) for i in range(len(obs))]).astype(np.float32)
-    views = Views(intrinsics=obs.intrinsics, poses=obs.poses, labels=labels, depth=depth)
+    obs, views = _stack_capture(tmp_path)
+    labels, depth = views.labels.copy(), views.depth
     ids, counts = np.unique(labels[labels > 0], return_counts=True)
     k = int(ids[np.argmin(counts)])  # the smallest object: a few hundred points, as a mug on a phone's depth
     frames = [i for i in range(len(obs)) if (labels[i] == k).sum() > 0]

@@ -373,13 +373,7 @@ def label_consensus(views: Views, *, tol_m: float = 0.02, tol_rel: float = 0.02,
             j = i + off
             if j < 0 or j >= n:
                 continue
-            row, col, zj, valid = views.project(j, pts)
-            dj = views.depth[j][row, col]
-            valid &= (dj > 0) & confident(j)[row, col]
-            tol = tol_m + tol_rel * zj
-            agree = valid & (np.abs(dj - zj) <= tol)
-            through = valid & (dj > zj + tol)
-            lab = views.labels[j][row, col]
+            lab, agree, through = _seen_from(views, j, pts, tol_m, tol_rel, confident(j))
             ok = agree & (lab >= 0)
             np.add.at(votes, (np.flatnonzero(ok), lab[ok]), 1)
             votes[through, top - 1] += 1
@@ -405,6 +399,20 @@ def label_consensus(views: Views, *, tol_m: float = 0.02, tol_rel: float = 0.02,
         stats.unknown += int((odd & (labels[i] >= 0)).sum())
         labels[i][odd] = -1
     return labels, depth, stats
+
+
+def _seen_from(views: Views, j: int, points: np.ndarray, tol_m: float, tol_rel: float,
+               sure: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """What frame ``j`` shows where [P, 3] world points project: (its labels there, where its depth is the
+    points' within ``tol_m + tol_rel * z``, where it lies beyond them: seen through), [P] each. A point outside
+    the image, on a pixel without depth or outside the [H, W] mask ``sure`` is neither."""
+    row, col, z, valid = views.project(j, points)
+    d = views.depth[j][row, col]  # type: ignore[index]
+    valid &= d > 0
+    if sure is not None:
+        valid &= sure[row, col]
+    tol = tol_m + tol_rel * z
+    return views.labels[j][row, col], valid & (np.abs(d - z) <= tol), valid & (d > z + tol)
 
 
 def _off_surface(labels: np.ndarray, depth: np.ndarray, tol_m: float, tol_rel: float, window: int) -> np.ndarray:
@@ -526,14 +534,9 @@ def object_points(cloud: np.ndarray, frame: np.ndarray, radius: float, views: Vi
         for j in check:
             if int(j) in own:
                 continue
-            row, col, z, valid = views.project(int(j), mine)
-            d = views.depth[j][row, col]
-            valid &= d > 0
-            tol = tol_m + tol_rel * z
-            sees = valid & (np.abs(d - z) <= tol)
-            lab = views.labels[j][row, col]
+            lab, sees, through = _seen_from(views, int(j), mine, tol_m, tol_rel)
             agree += int((sees & (lab == label)).sum())
-            against += int((sees & (lab != label) & (lab >= 0)).sum() + (valid & (d > z + tol)).sum())
+            against += int((sees & (lab != label) & (lab >= 0)).sum() + through.sum())
         wanted[p] = agree >= against
     return pts[wanted[piece]]
 

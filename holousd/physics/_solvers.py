@@ -65,6 +65,7 @@ class Stepper:
         self._pipeline = None
         self._contacts = None
         self._arena_mb = config.mujoco_arena_mb
+        self._fatal: tuple[type[BaseException], ...] = ()  # MuJoCo's FatalError, for MuJoCo (none catches nothing)
         self.contact_growths = 0
         """XPBD: times a step filled the contact buffer and it was doubled (see :meth:`step`); 0 for MuJoCo."""
         if config.name == "xpbd":
@@ -79,6 +80,9 @@ class Stepper:
                 # Newton 1.8 pins mujoco ~=3.17 in metadata but runs with the installed 4.0; the warning is noise.
                 warnings.filterwarnings("ignore", message="MuJoCo dependency version mismatch")
                 # MuJoCo keeps its own solver iteration defaults; ``iterations`` is an XPBD setting.
+                import mujoco
+
+                self._fatal = (mujoco.FatalError,)
                 with _arena(config.mujoco_arena_mb):
                     self._solver = newton.solvers.SolverMuJoCo(
                         model, use_mujoco_cpu=pm.device == "cpu", enable_multiccd=True
@@ -161,18 +165,13 @@ class Stepper:
                 self._contacts = self._pipeline.contacts()
                 self.contact_growths += 1
                 self._pipeline.collide(self._state_0, self._contacts)
-        if self.name == "mujoco":
-            import mujoco
-
-            try:
-                self._solver.step(self._state_0, self._state_1, self._control, self._contacts, dt)
-            except mujoco.FatalError as exc:  # its stack lives in the arena: too small a one ends the run
-                raise PhysicsInputError(
-                    f"{self.pm.source}: MuJoCo ran out of its {self._arena_mb:g} MiB arena "
-                    f"({str(exc).splitlines()[0]}); raise SolverConfig.mujoco_arena_mb"
-                ) from exc
-        else:
+        try:
             self._solver.step(self._state_0, self._state_1, self._control, self._contacts, dt)
+        except self._fatal as exc:  # MuJoCo's stack lives in its arena: too small a one ends the run
+            raise PhysicsInputError(
+                f"{self.pm.source}: MuJoCo ran out of its {self._arena_mb:g} MiB arena "
+                f"({str(exc).splitlines()[0]}); raise SolverConfig.mujoco_arena_mb"
+            ) from exc
         self._state_0, self._state_1 = self._state_1, self._state_0
 
     @staticmethod

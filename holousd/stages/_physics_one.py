@@ -58,7 +58,7 @@ triangle-mesh contact launched furniture resting on the fitted room shell.
 from __future__ import annotations
 
 import os
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -519,6 +519,11 @@ def _local_plane(pose: Pose, normal: np.ndarray, offset: float) -> tuple[tuple[f
     return tuple(float(v) for v in rotation.T @ normal), float(offset - normal @ np.asarray(pose.translation, float))
 
 
+def _box(lo: Sequence[float], hi: Sequence[float]) -> np.ndarray:
+    """[8, 3] corners of the axis-aligned box from ``lo`` to ``hi`` (x slowest, z fastest)."""
+    return np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])], np.float64)
+
+
 def _flatten_top(parent: _Body, children: list[_Body], config: PhysicsSetupConfig) -> _Body:
     """Cut a support's surface flat under each child resting on it: what of the support stands above the
     lowest point of its surface under the child (at most ``top_depth`` below the highest point there that comes
@@ -555,8 +560,7 @@ def _flatten_top(parent: _Body, children: list[_Body], config: PhysicsSetupConfi
         # bumps in the footprint's corners up to top_depth above the flat surface go with it (a hull spanning
         # one and the flat surface bridged demo's bowl base 1.6 cm up); a wall beside keeps what stands higher
         hi = np.array([*(c[:, :2].max(axis=0) + 0.01), max(highest, plane + config.top_depth) + 1e-3])
-        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-        cut = body.minus_convex([convex_hull(corners)], f"cut:top:{child.name}")
+        cut = body.minus_convex([convex_hull(_box(lo, hi))], f"cut:top:{child.name}")
         # under the child's outline, up to where the flat top is looked for: hidden under the child (demo's bowl
         # had a lump of the shelf's fitted back 3 cm up under its rim; it rested against it and tipped)
         try:  # (a child sunk 3 cm into its support has nothing hidden under it above that)
@@ -631,7 +635,7 @@ def _filled_up_to(body: _Body, lo: np.ndarray, hi: np.ndarray, depth: float, edi
     if plane - deepest < 5e-4:
         return body
     inverse = np.linalg.inv(body.pose.matrix())
-    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (deepest - 1e-3, plane)])
+    corners = _box((*lo[:2], deepest - 1e-3), (*hi[:2], plane))
     part = convex_hull(corners @ inverse[:3, :3].T + inverse[:3, 3])
     united = _united(body.mesh, [part])
     return body if united is None else body.plus_convex([part], united, edit)
@@ -670,9 +674,8 @@ def _spanned(body: _Body, lo: np.ndarray, hi: np.ndarray, depth: float, edit: st
     top = local[np.unique(faces[level])]  # object coordinates: the axes the fit squared the object to
     z_lo, z_hi = float(local[:, 2].min()) - 1.0, float(local[:, 2].max()) + 1.0
     inverse = np.linalg.inv(body.pose.matrix())
-    box = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (floor, plane)])
-    rect = np.array([[x, y, z] for x in (top[:, 0].min(), top[:, 0].max()) for y in (top[:, 1].min(), top[:, 1].max())
-                     for z in (z_lo, z_hi)])  # fmt: skip
+    box = _box((*lo[:2], floor), (*hi[:2], plane))
+    rect = _box((*top[:, :2].min(axis=0), z_lo), (*top[:, :2].max(axis=0), z_hi))
     outline = np.concatenate([np.column_stack([local[:, :2], np.full(len(local), z)]) for z in (z_lo, z_hi)])
     hull = manifold3d.Manifold.hull_points
     slab = (hull(np.ascontiguousarray(box @ inverse[:3, :3].T + inverse[:3, 3])) ^ hull(rect)
@@ -710,9 +713,7 @@ def _separate(bodies: dict[str, _Body], relations: Relations, config: PhysicsSet
                 continue
             direction = both.thin_axis if both.thin_axis is not None else np.eye(3)[int(np.argmin(both.hi - both.lo))]
             mid = float(direction @ (both.lo + both.hi) / 2)
-            lo, hi = both.lo - 0.01, both.hi + 0.01
-            box = manifold3d.Manifold.hull_points(np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
-                                                            for z in (lo[2], hi[2])], np.float64))  # fmt: skip
+            box = manifold3d.Manifold.hull_points(_box(both.lo - 0.01, both.hi + 0.01))
             for name, other in ((a, b), (b, a)):
                 centre = mass_properties(out[name].world(), 1.0).center_of_mass
                 side = 1.0 if float(direction @ centre) >= mid else -1.0
