@@ -172,6 +172,7 @@ def _render_metrics(scene: Any, gt_dir: Path, config: EvalConfig, notes: list[st
     from holousd.eval._image import psnr, ssim
     from holousd.io import load
     from holousd.render import Camera, SceneRenderer
+    from holousd.stages._fit import observations_as_fitted
     from holousd.stages._pipeline import holdout_frames
 
     try:
@@ -182,7 +183,7 @@ def _render_metrics(scene: Any, gt_dir: Path, config: EvalConfig, notes: list[st
     if renderer.splat_count == 0:
         notes.append("render: the scene has no Gaussian splats (appearance stage not run); PSNR/SSIM are null")
         return {"psnr": None, "ssim": None, "mesh_psnr": None, "vertex_psnr": None}
-    obs = load(gt_dir)
+    obs = observations_as_fitted(load(gt_dir), scene)  # rendered from where the fit put the cameras
     frames = holdout_frames(len(obs)) or list(range(len(obs)))
     frames = [frames[i] for i in evenly_spaced(len(frames), config.render_frames)]
     p, s = [], []

@@ -16,6 +16,7 @@ from holousd.geometry._grid import (
     signed_distance_from_occupancy,
 )
 from holousd.geometry._meshing import MeshingResult, face_budget, mesh_from_sdf
+from holousd.geometry._poses import PoseConfig, PoseRefinement, refine_poses
 from holousd.geometry._sdf import point_triangle_distance, sdf_from_convex_parts
 
 __all__ = [
@@ -23,6 +24,8 @@ __all__ = [
     "Decomposition",
     "FusionResult",
     "MeshingResult",
+    "PoseConfig",
+    "PoseRefinement",
     "Views",
     "VoxelGrid",
     "box_sdf",
@@ -36,6 +39,7 @@ __all__ = [
     "object_points",
     "plane_decomposition",
     "point_triangle_distance",
+    "refine_poses",
     "sample_grid",
     "sdf_from_convex_parts",
     "signed_distance_from_occupancy",

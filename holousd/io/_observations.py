@@ -438,6 +438,16 @@ class Observations:
 
         return self._replace(depth=[clean(d) for d in self._depth])
 
+    def with_poses(self, poses: np.ndarray) -> Observations:
+        """The same capture with other [N, 4, 4] camera-to-world poses (e.g. those s1_fit aligned)."""
+        poses = np.asarray(poses, dtype=np.float64)
+        if poses.shape != (len(self), 4, 4):
+            raise ObservationsError(f"{self.root or '<observations>'}: with_poses needs {len(self)} 4x4 poses, got "
+                                    f"an array of shape {list(poses.shape)}")  # fmt: skip
+        if not np.all(np.isfinite(poses)):
+            raise ObservationsError(f"{self.root or '<observations>'}: with_poses got NaN or infinite poses")
+        return self._replace(poses=poses)
+
     def _replace(self, **changes: object) -> Observations:
         fields = dict(rgb=self._rgb, intrinsics=self.intrinsics, poses=self.poses, width=self.width,
                       height=self.height, masks=self._masks, depth=self._depth, normals=self._normals,

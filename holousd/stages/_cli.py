@@ -41,6 +41,10 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     fit.add_argument("--seed", type=int, default=0, help="seed of ray sampling")
     fit.add_argument("--iterations", type=int, default=None, help="refinement steps (default: the preset's)")
     fit.add_argument("--no-depth", action="store_true", help="ignore the capture's depth and normals")
+    fit.add_argument("--refine-poses", choices=("auto", "on", "off"), default="auto",
+                     help="camera poses, with metric depth: aligned against the depth and used when clearly better "
+                     "than the capture's ('auto'), whenever the frames overlap ('on'), or never looked at ('off'); see "
+                     "holousd reconstruct --help")  # fmt: skip
     fit.add_argument("--threads", type=positive_int, default=None, help="torch CPU threads (default: torch's)")
     fit.add_argument("--no-progress", action="store_true", help="do not show a progress bar on stderr")
     fit.set_defaults(handler=_fit_command)
@@ -90,7 +94,8 @@ def drop_depth(obs: Any) -> Any:
 
 
 def run_fit(input_path: Path, out: Path, preset: str, *, seed: int = 0, iterations: int | None = None,
-            use_depth: bool = True, progress: bool = True, threads: int | None = None) -> dict[str, Any]:  # fmt: skip
+            use_depth: bool = True, progress: bool = True, threads: int | None = None,
+            refine_poses: str = "auto") -> dict[str, Any]:  # fmt: skip
     """Load a capture, run s0_observe and s1_fit into ``out`` and return a JSON-ready report."""
     from holousd._atomic import folder_transaction
     from holousd._paths import output_folder
@@ -103,7 +108,7 @@ def run_fit(input_path: Path, out: Path, preset: str, *, seed: int = 0, iteratio
     obs = load(input_path)
     if not use_depth:
         obs = drop_depth(obs)
-    config = replace(_fit.PRESETS[preset], seed=seed, progress=progress, threads=threads)
+    config = replace(_fit.PRESETS[preset], seed=seed, progress=progress, threads=threads, refine_poses=refine_poses)
     if iterations is not None:
         config = replace(config, iterations=iterations)
     obs = checked(obs, lambda line: print(line, file=sys.stderr, flush=True))
@@ -125,6 +130,7 @@ def run_fit(input_path: Path, out: Path, preset: str, *, seed: int = 0, iteratio
         "floor_z": result.floor_z,
         "background_faces": result.background_faces,
         "final_losses": result.final_losses,
+        "poses": _pose_report(result.poses),
         "objects": [
             {
                 "name": o.name,
@@ -142,11 +148,22 @@ def run_fit(input_path: Path, out: Path, preset: str, *, seed: int = 0, iteratio
     }
 
 
+def _pose_report(aligned: Any) -> dict[str, Any] | None:
+    """What the fit's pose alignment found, JSON-ready (None: not run)."""
+    if aligned is None:
+        return None
+    finite = {"residual_before_m": aligned.residual_before, "residual_after_m": aligned.residual_after}
+    return {"applied": aligned.applied, "pairs": aligned.pairs,
+            **{key: value if value < float("inf") else None for key, value in finite.items()},
+            "moved_m": aligned.translation.tolist(), "turned_deg": aligned.rotation_deg.tolist()}  # fmt: skip
+
+
 def _fit_command(args: argparse.Namespace) -> int:
     from holousd._atomic import atomic_path
 
     report = run_fit(args.input, args.out, args.preset, seed=args.seed, iterations=args.iterations,
-                     use_depth=not args.no_depth, progress=not args.no_progress, threads=args.threads)  # fmt: skip
+                     use_depth=not args.no_depth, progress=not args.no_progress, threads=args.threads,
+                     refine_poses=args.refine_poses)  # fmt: skip
     with atomic_path(args.out / "fit_report.json") as tmp:
         tmp.write_text(json.dumps(report, indent=2))
     meshes = sum(1 for o in report["objects"] if o["faces"])

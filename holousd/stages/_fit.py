@@ -2,7 +2,10 @@
 
 Pipeline per capture:
 
-1. Frames are read once (labels, colour, depth, normals; long captures are subsampled).
+1. Frames are read once (labels, colour, depth, normals; long captures are subsampled). With metric depth the
+   camera poses are aligned against the depth (:func:`holousd.geometry.refine_poses`) and the aligned poses
+   used, for every later step and stage, when they are clearly better than the capture's (``refine_poses``);
+   then every pixel's label and depth is checked against the neighbouring frames (``consensus``).
 2. Background: with metric depth the room shell is TSDF-fused from background pixels at a coarse voxel and
    meshed (a closed slab a truncation distance thick, usable as a static collider); the floor height is the
    robust lowest level of the background points. Without metric depth the floor is the lowest point of the
@@ -64,6 +67,7 @@ from holousd.geometry._grid import (
     signed_distance_from_occupancy,
 )
 from holousd.geometry._meshing import face_budget, mesh_from_sdf
+from holousd.geometry._poses import PoseConfig, PoseRefinement, axis_angle, refine_poses, spread_corrections
 from holousd.io._observations import Observations
 from holousd.render._volume import VolumeConfig
 from holousd.usd._scene import BACKGROUND, SceneGraph
@@ -83,6 +87,7 @@ __all__ = [
     "LossWeights",
     "ObjectFit",
     "fit",
+    "observations_as_fitted",
     "run",
     "with_seed",
 ]
@@ -167,6 +172,14 @@ class FitConfig:
     """Face budget of the background mesh."""
     resolve_overlaps: bool = True
     """Split volumes claimed by two instances at their mid-surface before meshing."""
+    refine_poses: str = "auto"
+    """With metric depth: 'auto' aligns the camera poses against the depth and uses the aligned ones when they
+    cut the frames' disagreement to under ``poses.max_ratio`` of the given poses' (poses from structure from
+    motion or a weak tracker; a good tracker's are kept, see :mod:`holousd.geometry._poses`); 'on' uses them
+    whenever frames overlap and the alignment kept its correspondences; 'off' keeps the capture's poses without
+    looking. Without metric depth the capture's poses are used ('on' says so)."""
+    poses: PoseConfig = field(default_factory=PoseConfig)
+    """Settings of the pose alignment."""
     align_room: bool = True
     """With metric depth, fit in the room's frame: turned about z by the yaw of the scene's vertical surfaces
     (see the module docstring). Off, or without depth, grids and object axes are the capture's world axes."""
@@ -248,6 +261,8 @@ class FitResult:
     nothing faces up); above ``max_tilt_deg`` the fit warns that the capture is not level."""
     consensus: Consensus | None = None
     """What the label / depth check across frames changed (None: not run)."""
+    poses: PoseRefinement | None = None
+    """What the pose alignment found over the frames read, and whether its poses were used (None: not run)."""
     wall_time_s: float = 0.0
     """Wall-clock time of the stage, seconds."""
     timings: dict[str, float] = field(default_factory=dict)
@@ -268,8 +283,9 @@ class _Frames:
     depth_raw: np.ndarray | None  # [N, H, W] float32 as given (metric or relative)
 
 
-def _load_frames(obs: Observations, count: int, use_depth: bool, use_normals: bool,
-                 consensus: bool = False) -> tuple[_Frames, Consensus | None]:  # fmt: skip
+def _load_frames(obs: Observations, count: int, use_depth: bool, use_normals: bool, consensus: bool = False,
+                 refine: str = "off", pose_config: PoseConfig | None = None,
+                 ) -> tuple[_Frames, Consensus | None, PoseRefinement | None]:  # fmt: skip
     idx = evenly_spaced(len(obs), count)
     labels = np.empty((len(idx), obs.height, obs.width), np.int32)
     rgb = np.empty((len(idx), obs.height, obs.width, 3), np.uint8)
@@ -292,11 +308,66 @@ def _load_frames(obs: Observations, count: int, use_depth: bool, use_normals: bo
             normals[j] = obs.normal(int(i))
     metric = depth if (use_depth and obs.depth_kind == "metric") else None
     views = Views(intrinsics=obs.intrinsics[idx], poses=obs.poses[idx], labels=labels, depth=metric)
+    aligned = None
+    if refine != "off" and metric is not None and len(idx) > 1:
+        config = pose_config or PoseConfig()
+        aligned = refine_poses(views, replace(config, max_ratio=np.inf) if refine == "on" else config)
+        views.poses = aligned.poses
     checked = None
     if consensus and metric is not None:
         views.labels, views.depth, checked = label_consensus(views)
         depth = views.depth
-    return _Frames(index=idx, views=views, rgb=rgb, normals=normals, depth_raw=depth), checked
+    return _Frames(index=idx, views=views, rgb=rgb, normals=normals, depth_raw=depth), checked, aligned
+
+
+def _pose_summary(aligned: PoseRefinement) -> str:
+    """One line on what the pose alignment found and did."""
+    if not aligned.pairs:
+        return "camera poses kept as the capture gives them: no two frames overlap enough to align their depth"
+    t, r = 1000 * aligned.translation, aligned.rotation_deg
+    moves = f"median {np.median(t):.1f} mm / {np.median(r):.2f} deg, largest {t.max():.1f} mm / {r.max():.2f} deg"
+    gain = f"{1000 * aligned.residual_before:.1f} -> {1000 * aligned.residual_after:.1f} mm"
+    if aligned.applied:
+        return (f"camera poses aligned against the depth and used ({len(t)} frames moved {moves}; the frames' depth "
+                f"disagreement {gain})")  # fmt: skip
+    if not np.isfinite(aligned.residual_after) or aligned.ratio >= 1.0:
+        return f"camera poses kept as the capture gives them: aligning them against the depth did not converge ({gain})"
+    return (f"camera poses kept as the capture gives them: aligned against the depth they would move {moves}, "
+            f"but the frames' depth disagreement ({gain}) shows the depth's errors as large as the poses'")  # fmt: skip
+
+
+def _write_camera_poses(scene: SceneGraph, obs: Observations, index: np.ndarray, aligned: PoseRefinement) -> None:
+    """Write every camera of the capture with its aligned pose (frames not read get the corrections of the read
+    frames around them) and how far it moved and turned, in the current edit target."""
+    poses = spread_corrections(index, obs.poses[index], aligned.poses, obs.poses)
+    cameras = scene.get_cameras()
+    if len(cameras) != len(obs):
+        raise HolousdError(f"{scene.path}: {len(cameras)} cameras for a capture of {len(obs)} frames; run "
+                           "s0_observe on this capture again")  # fmt: skip
+    for camera, given, pose in zip(cameras, obs.poses, poses, strict=True):
+        camera.cam_to_world = pose
+        camera.pose_move = pose[:3, 3] - given[:3, 3]
+        camera.pose_turn_deg = np.degrees(axis_angle(pose[:3, :3] @ given[:3, :3].T))
+        scene.set_camera_pose(camera)
+
+
+def observations_as_fitted(obs: Observations, scene: SceneGraph) -> Observations:
+    """``obs`` with the camera poses of ``scene``'s cameras when s1_fit aligned them (a non-zero
+    ``holo:camera:poseMove`` / ``poseTurn`` on some camera), else ``obs`` itself: what the stages after the fit
+    and the evaluation render with.
+
+    Raises:
+        HolousdError: the scene's cameras were aligned but are not the capture's frames (another count, other
+            frame ids): the scene was made from another capture.
+    """
+    cameras = scene.get_cameras()
+    if not any(np.any(c.pose_move) or np.any(c.pose_turn_deg) for c in cameras):
+        return obs
+    if [c.frame_id for c in cameras] != [str(f) for f in obs.frame_ids]:
+        raise HolousdError(f"{scene.path}: its {len(cameras)} cameras (poses aligned by s1_fit) are not the "
+                           f"{len(obs)} frames of {obs.root or 'the capture'}; use the capture the scene was made "
+                           "from")  # fmt: skip
+    return obs.with_poses(np.stack([c.cam_to_world for c in cameras]))
 
 
 # --------------------------------------------------------------------------------------------- the room's frame
@@ -836,9 +907,19 @@ def fit(scene: SceneGraph, obs: Observations, config: FitConfig | None = None,
     use_depth = obs.has_depth
     relative = use_depth and obs.depth_kind == "relative"
     metric = use_depth and obs.depth_kind == "metric"
-    frames, checked = _load_frames(obs, max(config.render_frames, config.fusion_frames), use_depth, obs.has_normals,
-                                   config.consensus)  # fmt: skip
+    if config.refine_poses not in ("auto", "on", "off"):
+        raise HolousdError(f"FitConfig.refine_poses {config.refine_poses!r}: choose 'auto', 'on' or 'off'")
+    frames, checked, aligned = _load_frames(obs, max(config.render_frames, config.fusion_frames), use_depth,
+                                            obs.has_normals, config.consensus, config.refine_poses,
+                                            config.poses)  # fmt: skip
     views = frames.views
+    if aligned is not None:
+        timings["poses"] = aligned.wall_s
+        if config.progress:
+            print(f"fit: {_pose_summary(aligned)}", file=sys.stderr)
+    elif config.refine_poses == "on" and not metric:
+        print(f"warning: {obs.root or '<observations>'}: refine_poses 'on' needs metric depth and the capture has "
+              "none: its camera poses are used as given", file=sys.stderr)  # fmt: skip
     if checked is not None and config.progress and (checked.relabelled or checked.unknown or checked.flying):
         share = 100.0 * (checked.relabelled + checked.unknown) / max(1, checked.checked)
         print(f"fit: labels checked across frames: {checked.relabelled} pixels relabelled, {checked.unknown} "
@@ -866,7 +947,7 @@ def fit(scene: SceneGraph, obs: Observations, config: FitConfig | None = None,
         print(f"warning: {where}: the capture's floor and tops face {tilt:.1f} deg away from its world z axis: "
               "physics pulls along -z, so what stands in the room slides or tips in the scene; give camera poses "
               "with gravity along -z (level the world frame)", file=sys.stderr)  # fmt: skip
-    timings["load"] = time.perf_counter() - start
+    timings["load"] = time.perf_counter() - start - timings.get("poses", 0.0)
 
     t0 = time.perf_counter()
     floor: float | None = None
@@ -935,6 +1016,8 @@ def fit(scene: SceneGraph, obs: Observations, config: FitConfig | None = None,
     if config.resolve_overlaps and config.iterations > 0:
         _resolve_overlaps(instances)
     scene.push_layer(out_dir / FIT_LAYER, provenance="s1_fit", replace=True)
+    if aligned is not None and aligned.applied:
+        _write_camera_poses(scene, obs, frames.index, aligned)
     results: list[ObjectFit] = []
     placed: list[np.ndarray] = []  # the meshes' bounds in the fit's frame
     for inst in instances:
@@ -997,6 +1080,7 @@ def fit(scene: SceneGraph, obs: Observations, config: FitConfig | None = None,
         yaw_deg=float(np.degrees(yaw)),
         tilt_deg=tilt,
         consensus=checked,
+        poses=aligned,
         wall_time_s=time.perf_counter() - start,
         timings=timings,
         peak_memory_mb=_peak_memory_mb(),

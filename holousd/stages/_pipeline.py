@@ -446,12 +446,12 @@ def _run_stages(plan: list[tuple[str, str, bool, dict[str, Any] | None]], obs: A
             scene = _observe.run(obs, out, config.observe)
         elif name == "fit":
             scene = _fit.run(scene, obs, config.fit)
-        elif name == "search":
-            scene = _search.run(scene, obs, config.search, log=log)
+        elif name == "search":  # the stages after the fit see the cameras where the fit put them
+            scene = _search.run(scene, _fit.observations_as_fitted(obs, scene), config.search, log=log)
         elif name == "physics":
             scene = _physics.run(scene, config.physics)
         else:
-            scene = _run_appearance(scene, obs, config.appearance, out)
+            scene = _run_appearance(scene, _fit.observations_as_fitted(obs, scene), config.appearance, out)
         wall = time.perf_counter() - t0
         rec = StageRecord(name=name, layer=str(layer_file), wall_s=wall, peak_mem_mb=_peak_mem_mb(),
                           input_hash=input_hash, run_id=uuid.uuid4().hex, config=_jsonable(configs[name]))  # fmt: skip

@@ -47,6 +47,11 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     rec.add_argument("--ray", default=None, metavar="ADDRESS",
                      help="propose and score the search's completion candidates as Ray tasks: 'local', 'auto' (the "
                      "running cluster) or HOST:PORT; the same scene as without (needs holousd[ray])")  # fmt: skip
+    rec.add_argument("--refine-poses", choices=("auto", "on", "off"), default="auto",
+                     help="camera poses, with metric depth: 'auto' aligns them against the depth and uses the "
+                     "aligned ones when they are clearly better than the capture's (poses from structure from motion "
+                     "or a weak tracker; a good tracker's are kept), 'on' uses them whenever the frames overlap, "
+                     "'off' never looks; the fit layer's cameras record how far each moved; default auto")  # fmt: skip
     rec.add_argument("--no-appearance", action="store_true", help="skip the appearance stage")
     rec.add_argument("--no-progress", action="store_true", help="no progress bars on stderr")
     rec.set_defaults(handler=_reconstruct)
@@ -82,7 +87,7 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
                        help="comma-separated s2 search modes run with every preset (tree, ground, none): the "
                        "ablation rows; a mode other than tree is labelled PRESET@MODE (default: tree)")  # fmt: skip
     bench.add_argument("--sensor", default="clean", metavar="SENSORS",
-                       help="comma-separated sensor models of the generated captures (clean, phone, lidar; see "
+                       help="comma-separated sensor models of the generated captures (clean, phone, lidar, sfm; see "
                        "holousd synth --help): each preset runs on each, side by side, a run on another sensor than "
                        "clean labelled PRESET[SENSOR] (default: clean)")  # fmt: skip
     bench.add_argument("--data", type=Path, default=None, metavar="DIR",
@@ -109,7 +114,7 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     demo.add_argument("--seed", type=int, default=0, help="seed of generation and reconstruction")
     demo.add_argument("--threads", type=positive_int, default=None, help="torch CPU threads (default: torch's)")
     demo.add_argument("--search", choices=("tree", "ground", "none"), default="tree", help="s2 search mode")
-    demo.add_argument("--sensor", choices=("clean", "phone", "lidar"), default="clean",
+    demo.add_argument("--sensor", choices=("clean", "phone", "lidar", "sfm"), default="clean",
                       help="sensor model of the synthesised capture (see holousd synth --help)")  # fmt: skip
     demo.set_defaults(handler=_demo)
 
@@ -121,6 +126,7 @@ def _reconstruct(args: argparse.Namespace) -> int:
 
     config = preset(args.preset, seed=args.seed, progress=not args.no_progress, threads=args.threads,
                     search=args.search)  # fmt: skip
+    config = replace(config, fit=replace(config.fit, refine_poses=args.refine_poses))
     if args.no_appearance:
         config = replace(config, appearance=replace(config.appearance, enabled=False))
     if args.ray:

@@ -22,7 +22,7 @@ normals/), and ground truth in gt/: scene.usda (meshes, colliders, mass, frictio
 relations; passes holousd validate), graph.json (support tree, beside pairs, poses, physical parameters,
 observed fraction per object) and meshes/<name>.ply (watertight, object coordinates). Depth is metric
 z-depth along the optical axis; normals are in the OpenCV camera frame; mask 0 is the room.
-With --sensor phone or lidar the capture carries that device's defects (the model, channel by channel, is
+With --sensor phone, lidar or sfm the capture carries that device's defects (the model, channel by channel, is
 documented in holousd/synth/_sensor.py and recorded in gt/graph.json); gt/cameras.json holds the true poses.
 The same --seed gives byte-identical files."""
 
@@ -58,12 +58,13 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     )
     synth.add_argument(
         "--sensor",
-        choices=("clean", "phone", "lidar"),
+        choices=("clean", "phone", "lidar", "sfm"),
         default="clean",
         help="what the capture device does to the frames: clean = the renderer's exact depth, normals, masks and "
         "poses; phone = a phone's LiDAR depth (half resolution, noisy, holes), a video segmenter's masks, a "
         "tracker's drifting poses, auto-exposure, blur, no normals; lidar = a depth camera on a tracked rig "
-        "(less of each). The ground truth in gt/ stays exact",
+        "(less of each); sfm = that depth camera with poses off by about a centimetre and a degree per frame "
+        "(structure from motion, a weak tracker). The ground truth in gt/ stays exact",
     )
     synth.add_argument("--overwrite", action="store_true", help="replace scene folders generated before")
     synth.add_argument("--no-progress", action="store_true", help="do not show progress bars on stderr")

@@ -39,10 +39,12 @@ The capture's ground truth (``gt/``) stays exact; ``gt/graph.json`` records the 
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 from scipy import ndimage
+
+from holousd.geometry._poses import rotation_matrix as _rotation
 
 __all__ = ["SENSORS", "SensorModel", "sensor_model"]
 
@@ -241,16 +243,6 @@ class SensorModel:
         return np.clip(np.rint(img * 255.0), 0, 255).astype(np.uint8)
 
 
-def _rotation(rotvec: np.ndarray) -> np.ndarray:
-    """Rotation matrix of an axis-angle vector (Rodrigues)."""
-    angle = float(np.linalg.norm(rotvec))
-    if angle < 1e-15:
-        return np.eye(3)
-    k = rotvec / angle
-    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + np.sin(angle) * kx + (1 - np.cos(angle)) * kx @ kx
-
-
 def _smooth_field(rng: np.random.Generator, shape: tuple[int, int], sigma: float) -> np.ndarray:
     """A smooth random field of unit standard deviation (white noise blurred by a Gaussian of ``sigma`` px)."""
     field = ndimage.gaussian_filter(rng.normal(0.0, 1.0, shape), sigma=max(sigma, 0.5), mode="reflect")
@@ -292,6 +284,9 @@ SENSORS: dict[str, SensorModel] = {
     ),  # fmt: skip
 }
 """The built-in sensor models, by name."""
+# The lidar's depth camera with poses from structure from motion or a tracker that lost track now and then: each
+# frame off by about a centimetre and a degree (depth better than poses: what s1_fit's pose alignment is for).
+SENSORS["sfm"] = replace(SENSORS["lidar"], name="sfm", drift_m=0.002, drift_deg=0.12, jitter_m=0.006, jitter_deg=0.4)
 
 
 def sensor_model(name: str) -> SensorModel:

@@ -7,7 +7,10 @@ import sys
 from dataclasses import asdict
 from pathlib import Path
 
+import numpy as np
+
 from holousd._argtypes import emit_json
+from holousd._errors import SceneError
 
 __all__ = ["add_commands"]
 
@@ -84,10 +87,17 @@ def _info(args: argparse.Namespace) -> int:
     scene = _open(args.scene)
     summary = scene.summary()
     energies = {n.name: e for n in summary.nodes if (e := scene.get_energies(n.name)) is not None}
+    try:
+        cameras = scene.get_cameras()
+    except SceneError as exc:  # a camera another tool wrote without what ours carry: describe the rest
+        cameras = []
+        print(f"warning: {exc}", file=sys.stderr)
     if args.json:
         data = asdict(summary)
         data["total_splats"] = summary.total_splats
         data["search"] = {name: asdict(e) for name, e in energies.items()}
+        data["cameras"] = [{"name": c.name, "frame_id": c.frame_id, "pose_move_m": c.pose_move.tolist(),
+                            "pose_turn_deg": c.pose_turn_deg.tolist()} for c in cameras]  # fmt: skip
         emit_json(args, data)
         return 0
     print(f"scene: {summary.path}")
@@ -119,6 +129,8 @@ def _info(args: argparse.Namespace) -> int:
     for row in rows:
         print("  ".join(cell.ljust(w) for cell, w in zip(row, widths, strict=True)).rstrip())
     print(f"{len(summary.nodes)} nodes, {summary.total_splats} splats")
+    if cameras:
+        print(_camera_line(cameras))
     lines = _search_lines(energies)
     if lines:
         solver = next(iter(energies.values())).solver or "unrecorded"
@@ -129,6 +141,18 @@ def _info(args: argparse.Namespace) -> int:
         print(f"warning: {', '.join(unset)}: rigid body without an authored mass (a simulator then guesses one from "
               "its own default density); author UsdPhysics.MassAPI mass", file=sys.stderr)  # fmt: skip
     return 0
+
+
+def _camera_line(cameras: list) -> str:
+    """How many observation cameras, and how far s1_fit moved and turned them from the capture's poses."""
+    moved = [np.linalg.norm(c.pose_move) for c in cameras]
+    turned = [np.linalg.norm(c.pose_turn_deg) for c in cameras]
+    if not any(moved) and not any(turned):
+        return f"{len(cameras)} cameras, at the capture's poses"
+    return (f"{len(cameras)} cameras, poses aligned against the depth by s1_fit: moved median "
+            f"{1000 * np.median(moved):.1f} mm (largest {1000 * max(moved):.1f}), turned median "
+            f"{np.median(turned):.2f} deg (largest {max(turned):.2f}); per camera: holo:camera:poseMove / poseTurn, "
+            "or --json")  # fmt: skip
 
 
 def _mass_cell(node) -> str:  # noqa: ANN001 - NodeSummary

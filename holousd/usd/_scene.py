@@ -1151,11 +1151,8 @@ class SceneGraph:
         cam.CreateHorizontalApertureOffsetAttr().Set(float((camera.width / 2.0 - cx) * h_ap / camera.width))
         cam.CreateVerticalApertureOffsetAttr().Set(float((cy - camera.height / 2.0) * v_ap / camera.height))
         cam.CreateClippingRangeAttr().Set(Gf.Vec2f(0.01, 1000.0))
-        usd_matrix = camera.cam_to_world @ _CV_TO_USD_CAMERA
-        cam.ClearXformOpOrder()
-        cam.AddTransformOp(UsdGeom.XformOp.PrecisionDouble).Set(Gf.Matrix4d(usd_matrix.T.tolist()))
         prim = cam.GetPrim()
-        prim.ApplyAPI("HoloCameraAPI")
+        self._set_camera_pose(prim, camera)
         image = ""
         if camera.image:
             image_path = Path(camera.image)
@@ -1169,6 +1166,26 @@ class SceneGraph:
         prim.GetAttribute("holo:camera:frameId").Set(camera.frame_id)
         prim.GetAttribute("holo:camera:resolution").Set(Gf.Vec2i(camera.width, camera.height))
         return prim.GetPath()
+
+    def set_camera_pose(self, camera: CameraData) -> None:
+        """Write only the pose of the existing observation camera ``camera.name`` (and how far it was moved and
+        turned from the capture's pose, ``pose_move`` / ``pose_turn_deg``) in the current edit target: what
+        s1_fit writes when it refined the capture's poses."""
+        prim = self._stage.GetPrimAtPath(CAMERAS_PATH.AppendChild(camera.name))
+        if not prim or not prim.IsA(UsdGeom.Camera):
+            raise SceneError(f"{self._where()}: no observation camera {camera.name!r}; write it with set_camera()")
+        self._set_camera_pose(prim, camera, record=True)
+
+    @staticmethod
+    def _set_camera_pose(prim: Usd.Prim, camera: CameraData, record: bool = False) -> None:
+        cam = UsdGeom.Camera(prim)
+        usd_matrix = camera.cam_to_world @ _CV_TO_USD_CAMERA
+        cam.ClearXformOpOrder()
+        cam.AddTransformOp(UsdGeom.XformOp.PrecisionDouble).Set(Gf.Matrix4d(usd_matrix.T.tolist()))
+        prim.ApplyAPI("HoloCameraAPI")
+        if record or np.any(camera.pose_move) or np.any(camera.pose_turn_deg):
+            prim.GetAttribute("holo:camera:poseMove").Set(Gf.Vec3d(*camera.pose_move.tolist()))
+            prim.GetAttribute("holo:camera:poseTurn").Set(Gf.Vec3d(*camera.pose_turn_deg.tolist()))
 
     def get_cameras(self) -> list[CameraData]:
         """All observation cameras under /World/Cameras, in prim order (image paths resolved when possible)."""
@@ -1207,6 +1224,8 @@ class SceneGraph:
                         height=height,
                         image=image,
                         frame_id=str(prim.GetAttribute("holo:camera:frameId").Get() or ""),
+                        pose_move=np.array(prim.GetAttribute("holo:camera:poseMove").Get() or (0.0, 0.0, 0.0)),
+                        pose_turn_deg=np.array(prim.GetAttribute("holo:camera:poseTurn").Get() or (0.0, 0.0, 0.0)),
                     )
                 )
             except InvalidDataError as exc:

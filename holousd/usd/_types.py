@@ -348,9 +348,17 @@ class CameraData:
     """Path of the frame's RGB image (absolute, or relative to the scene layer), if any."""
     frame_id: str = ""
     """Identifier of the frame in its capture."""
+    pose_move: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    """[3] how far s1_fit moved the camera's centre from the capture's pose, world frame, metres (zero: as
+    given; ``holo:camera:poseMove``)."""
+    pose_turn_deg: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    """[3] how far s1_fit turned the camera about its centre from the capture's pose, world axis times angle,
+    degrees (``holo:camera:poseTurn``)."""
 
     def __post_init__(self) -> None:
         self.K = _array(self.K, np.float64, (3, 3), "CameraData.K")
+        self.pose_move = _array(self.pose_move, np.float64, (3,), "CameraData.pose_move")
+        self.pose_turn_deg = _array(self.pose_turn_deg, np.float64, (3,), "CameraData.pose_turn_deg")
         self.cam_to_world = _array(self.cam_to_world, np.float64, (4, 4), "CameraData.cam_to_world")
         rot = self.cam_to_world[:3, :3]
         if not np.allclose(rot @ rot.T, np.eye(3), atol=1e-4) or np.linalg.det(rot) < 0:
