@@ -333,7 +333,7 @@ def _pose_summary(aligned: PoseRefinement) -> str:
     if not np.isfinite(aligned.residual_after) or aligned.ratio >= 1.0:
         return f"camera poses kept as the capture gives them: aligning them against the depth did not converge ({gain})"
     return (f"camera poses kept as the capture gives them: aligned against the depth they would move {moves}, "
-            f"but the frames' depth disagreement ({gain}) shows the depth's errors as large as the poses'")  # fmt: skip
+            f"but the frames' depth disagreement ({gain}) says they are as good as the depth can tell")  # fmt: skip
 
 
 def _write_camera_poses(scene: SceneGraph, obs: Observations, index: np.ndarray, aligned: PoseRefinement) -> None:
