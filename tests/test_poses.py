@@ -3,6 +3,7 @@ depth says they are clearly better than the capture's; on hard/stack rendered sm
 
 from __future__ import annotations
 
+import json
 from dataclasses import replace
 from pathlib import Path
 
@@ -10,6 +11,7 @@ import numpy as np
 import pytest
 
 from holousd._errors import HolousdError
+from holousd.cli import main
 from holousd.geometry import Views
 from holousd.geometry._poses import PoseConfig, refine_poses, rotation_matrix, spread_corrections
 from holousd.io import Observations
@@ -100,7 +102,9 @@ def test_corrections_spread_to_frames_not_read() -> None:
     assert 0 < out[3, 1, 3] - base[3, 1, 3] < 0.015
 
 
-def test_fit_uses_and_records_aligned_poses_and_later_stages_see_them(stack: Observations, tmp_path: Path) -> None:
+def test_fit_uses_and_records_aligned_poses_and_later_stages_see_them(
+    stack: Observations, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     obs = stack
     truth = np.asarray(obs.poses)
     weak = obs.with_poses(WEAK.poses(truth, 3))
@@ -118,12 +122,19 @@ def test_fit_uses_and_records_aligned_poses_and_later_stages_see_them(stack: Obs
     observed = SceneGraph.open(tmp_path / "weak" / "00_observe.usda").get_cameras()
     assert np.allclose(np.stack([c.cam_to_world for c in observed]), weak.poses)  # the capture's poses stay below
     assert np.allclose(_fit.observations_as_fitted(weak, fitted).poses, used)
+    assert main(["info", str(tmp_path / "weak" / "10_fit.usda")]) == 0
+    assert "24 cameras, poses aligned against the depth by s1_fit: moved median" in capsys.readouterr().out
+    assert main(["info", str(tmp_path / "weak" / "10_fit.usda"), "--json"]) == 0
+    listed = json.loads(capsys.readouterr().out)["cameras"]
+    assert np.allclose([c["pose_move_m"] for c in listed], move)
     # exact poses: nothing is written over the cameras and the stages after see the capture as it is
     exact = _fit.fit(_observe.run(obs, tmp_path / "exact"), obs, TEST_CONFIG)
     assert exact.poses is not None and not exact.poses.applied
     layer = SceneGraph.open(tmp_path / "exact" / "10_fit.usda").root_layer
     assert not any("Cameras" in str(p) for p in _authored_paths(layer))
     assert _fit.observations_as_fitted(obs, SceneGraph.open(tmp_path / "exact" / "10_fit.usda")) is obs
+    assert main(["info", str(tmp_path / "exact" / "10_fit.usda")]) == 0
+    assert "24 cameras, at the capture's poses" in capsys.readouterr().out
     # off: not even looked at; on: used though they would not be in auto
     off = _fit.fit(_observe.run(weak, tmp_path / "off"), weak, replace(TEST_CONFIG, refine_poses="off"))
     assert off.poses is None
