@@ -120,10 +120,6 @@ def rotation_matrix(w: np.ndarray) -> np.ndarray:
     return np.eye(3) + np.sin(angle) * kx + (1.0 - np.cos(angle)) * kx @ kx
 
 
-def _angle_deg(rot: np.ndarray) -> float:
-    return float(np.degrees(np.arccos(np.clip((np.trace(rot) - 1.0) / 2.0, -1.0, 1.0))))
-
-
 def _lift(k: np.ndarray, rows: np.ndarray, cols: np.ndarray, depth: np.ndarray) -> np.ndarray:
     """Camera-frame points of pixels (``rows``, ``cols``, any shape) at z-depth ``depth``: [..., 3]."""
     return np.stack([(cols - k[0, 2]) / k[0, 0] * depth, (rows - k[1, 2]) / k[1, 1] * depth, depth], axis=-1)
@@ -280,7 +276,7 @@ def refine_poses(views: Views, config: PoseConfig | None = None) -> PoseRefineme
             poses[i, :3, 3] += step[i, :3]
         state += step
     moved = np.linalg.norm(poses[:, :3, 3] - given[:, :3, 3], axis=1)
-    turned = np.array([_angle_deg(poses[i, :3, :3] @ given[i, :3, :3].T) for i in range(n)])
+    turned = np.array([np.degrees(np.linalg.norm(axis_angle(poses[i, :3, :3] @ given[i, :3, :3].T))) for i in range(n)])
     result = PoseRefinement(poses=poses, translation=moved, rotation_deg=turned, residual_before=levels[0],
                             residual_after=levels[-1], pairs=len(pairs))  # fmt: skip
     result.wall_s = time.perf_counter() - start
