@@ -584,7 +584,7 @@ def test_far_plane_builds_no_phantom_room(capture: Path, tmp_path: Path) -> None
     assert np.abs(room[:, :2]).max() < 4.0  # the demo room is 4.6 x 4.0 m: no wall 10 m away
 
 
-def test_capture_without_valid_depth_is_fitted_from_its_masks(capture: Path, tmp_path: Path) -> None:
+def test_capture_without_valid_depth_counts_as_one_without_depth(capture: Path, tmp_path: Path) -> None:
     from holousd.usd import SceneGraph
 
     cap = tmp_path / "capture"
@@ -592,13 +592,22 @@ def test_capture_without_valid_depth_is_fitted_from_its_masks(capture: Path, tmp
     for path in (cap / "depth").iterdir():
         Image.fromarray(np.zeros((SIZE, SIZE), np.uint16)).save(path)
     lines: list[str] = []
-    result = reconstruct(cap, tmp_path / "recon", _tiny(), until="fit", log=lines.append)
-    assert any("none of the" in line and "visual hull" in line for line in lines), lines
+    masks_only = replace(_tiny(), observe=_pipeline._observe.ObserveConfig(depth="capture"))
+    result = reconstruct(cap, tmp_path / "recon", masks_only, until="fit", log=lines.append)
+    assert any("none of the" in line and "counts as one without depth" in line for line in lines), lines
+    assert not any("stereo" in line for line in lines), lines
     scene = SceneGraph.open(result.scene_file)
     faces = {name: len(scene.get_mesh(name).faces) for name in scene.objects()}
     assert len(faces) == 10 and min(faces.values()) > 0, faces
-    result = reconstruct(cap, tmp_path / "recon", _tiny(), until="fit", resume=True, log=lines.append)
+    result = reconstruct(cap, tmp_path / "recon", masks_only, until="fit", resume=True, log=lines.append)
     assert all(s.skipped for s in result.stages)
+    # by default such a capture gets depth by stereo from its colour frames (a new setting: the stages run again)
+    lines.clear()
+    result = reconstruct(cap, tmp_path / "recon", _tiny(), until="fit", resume=True, log=lines.append)
+    assert not any(s.skipped for s in result.stages)
+    assert any("has no depth; estimating it with the stereo prior (4 frames)" in line for line in lines), lines
+    scene = SceneGraph.open(result.scene_file)
+    assert len(scene.objects()) == 10
 
 
 def test_failing_stage_puts_the_output_folder_back(capture: Path, previous: Path, tmp_path: Path,

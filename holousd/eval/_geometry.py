@@ -17,6 +17,7 @@ import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -102,6 +103,36 @@ def visible_mask(
         d[ok] = depth[v[ok].astype(int), u[ok].astype(int)]
         seen |= ok & (d > 0) & (np.abs(d - z) < tolerance)
     return seen
+
+
+def _true_depth(gt_dir: Path, graph: dict, obs: Any, pick: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
+    """Depth of every ground-truth mesh (the room's included) ray-cast at the picked frames from the true poses
+    (``gt/cameras.json``; the capture's poses where there is none), and those poses."""
+    import json
+
+    import trimesh
+
+    from holousd.synth._raycast import RayCaster
+    from holousd.usd._types import Pose
+
+    points, faces, offset = [], [], 0
+    for node in graph["nodes"]:
+        if not node.get("mesh"):
+            continue
+        tm = trimesh.load(gt_dir / "gt" / node["mesh"], force="mesh", process=False)
+        pose = node.get("pose")
+        verts = np.asarray(tm.vertices, np.float64)
+        if pose is not None:
+            verts = Pose(translation=pose["translation"], orientation=pose["orientation_xyzw"]).apply(verts)
+        points.append(verts)
+        faces.append(np.asarray(tm.faces) + offset)
+        offset += len(verts)
+    cameras = gt_dir / "gt" / "cameras.json"
+    poses = np.asarray(json.loads(cameras.read_text())["poses"], np.float64) if cameras.is_file() else obs.poses
+    poses = poses[pick]
+    hits = RayCaster(np.concatenate(points), np.concatenate(faces)).cast(obs.intrinsics[pick], poses, obs.width,
+                                                                        obs.height)  # fmt: skip
+    return list(hits.depth), poses
 
 
 def geometry_metrics(
@@ -215,7 +246,10 @@ def evaluate_fit(
             pred_meshes[info.instance_id] = MeshData(points=pose.apply(mesh.points), faces=mesh.faces)
     obs = load(gt_dir)
     pick = evenly_spaced(len(obs), frames)
-    depths = [obs.depth(int(i)) for i in pick]
+    if obs.has_depth:
+        depths, seen_from = [obs.depth(int(i)) for i in pick], obs.poses[pick]
+    else:  # a capture without depth (the 'video' sensor): the ground truth's own depth from its true poses
+        depths, seen_from = _true_depth(gt_dir, graph, obs, pick)
 
     def area(m: MeshData) -> float:
         tri = m.points[m.faces]
@@ -228,7 +262,7 @@ def evaluate_fit(
 
     gt_s = samples_of({k: m for k, (_, m) in gt_meshes.items()})
     pred_s = samples_of(pred_meshes)
-    gt_vis = {k: visible_mask(p, obs.intrinsics[pick], obs.poses[pick], depths) for k, (p, _) in gt_s.items()}
+    gt_vis = {k: visible_mask(p, obs.intrinsics[pick], seen_from, depths) for k, (p, _) in gt_s.items()}
     per_object, per_object_complete = {}, {}
     missing = []
     for k, (name, _) in gt_meshes.items():

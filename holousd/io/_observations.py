@@ -86,7 +86,7 @@ class CaptureCheck:
             return []
         if self.valid_depth <= 0:
             return [f"depth: none of the {self.depth_pixels} depth pixels holds a measurement (all zero, NaN or at a "
-                    "far plane); fitting from the instance masks alone (visual hull, far less accurate)"]  # fmt: skip
+                    "far plane); the capture counts as one without depth (holousd reconstruct --depth)"]  # fmt: skip
         if self.nonfinite_depth == 0 and self.far_plane_depth == 0:
             return []
         parts = []
@@ -437,6 +437,18 @@ class Observations:
             return LazyArray(read, lazy.source)
 
         return self._replace(depth=[clean(d) for d in self._depth])
+
+    def with_depth(self, depth: Sequence[np.ndarray | LazyArray], kind: str, prior: str | None = None) -> Observations:
+        """The same capture with another depth channel (one [H, W] z-depth per frame, 0 = no value) of ``kind``
+        'metric' or 'relative'; ``prior`` names the depth prior that estimated it (kept as
+        ``metadata['depth_prior']``: the fit treats estimated depth as the noisier thing it is)."""
+        if len(depth) != len(self):
+            raise ObservationsError(f"{self.root or '<observations>'}: with_depth needs {len(self)} depth maps, got "
+                                    f"{len(depth)}")  # fmt: skip
+        metadata = {k: v for k, v in self.metadata.items() if k != "depth_prior"}
+        if prior is not None:
+            metadata["depth_prior"] = prior
+        return self._replace(depth=list(depth), depth_kind=kind, metadata=metadata)
 
     def with_poses(self, poses: np.ndarray) -> Observations:
         """The same capture with other [N, 4, 4] camera-to-world poses (e.g. those s1_fit aligned)."""

@@ -5,6 +5,10 @@ The proposers (:func:`make_proposer`; built in: ``stage1``, ``extrude``, ``symme
 ``holousd.completion``) turn an object's evidence (:func:`object_evidence`) into candidate shapes;
 :func:`observation_energy` scores each against every frame (E_obs). :func:`propose` does both for a list of
 proposers. The physics tree search that chooses among them is the stage after the fit.
+
+Depth priors (:func:`make_depth_prior`; built in: ``stereo``, multi-view stereo from the colour frames, and
+``learned``, a monocular depth network from a weights path; plug-ins under ``holousd.depth``) give a capture
+without depth a depth channel (:func:`with_depth_prior`).
 """
 
 from __future__ import annotations
@@ -20,10 +24,19 @@ from holousd.priors._api import (
     available_proposers,
     make_proposer,
 )
+from holousd.priors._depth import (
+    DEPTH_ENTRY_POINT_GROUP,
+    DepthPrior,
+    available_depth_priors,
+    make_depth_prior,
+    with_depth_prior,
+)
 from holousd.priors._energy import ObservationEnergy, observation_energy, scored_among, seen_through_limit
 from holousd.priors._evidence import object_evidence, object_neighbours
 
 __all__ = [
+    "DEPTH_ENTRY_POINT_GROUP",
+    "DepthPrior",
     "ENTRY_POINT_GROUP",
     "BUILTIN",
     "Candidate",
@@ -31,7 +44,9 @@ __all__ = [
     "FrameEvidence",
     "ObjectEvidence",
     "ObservationEnergy",
+    "available_depth_priors",
     "available_proposers",
+    "make_depth_prior",
     "make_proposer",
     "object_evidence",
     "object_neighbours",
@@ -39,6 +54,7 @@ __all__ = [
     "propose",
     "scored_among",
     "seen_through_limit",
+    "with_depth_prior",
 ]
 
 BUILTIN = ("stage1", "extrude", "symmetry", "primitive", "visual_hull")

@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from holousd._argtypes import positive_int
+from holousd.stages._pipeline_cli import add_depth_arguments, depth_options
 
 __all__ = ["add_commands", "drop_depth", "run_fit"]
 
@@ -40,7 +41,9 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     fit.add_argument("--preset", choices=("fast", "default", "best"), default="default", help="speed / accuracy")
     fit.add_argument("--seed", type=int, default=0, help="seed of ray sampling")
     fit.add_argument("--iterations", type=int, default=None, help="refinement steps (default: the preset's)")
-    fit.add_argument("--no-depth", action="store_true", help="ignore the capture's depth and normals")
+    fit.add_argument("--no-depth", action="store_true",
+                     help="ignore the capture's depth and normals and estimate none (the masks alone)")  # fmt: skip
+    add_depth_arguments(fit)
     fit.add_argument("--refine-poses", choices=("auto", "on", "off"), default="auto",
                      help="camera poses, with metric depth: aligned against the depth and used when clearly better "
                      "than the capture's ('auto'), whenever the frames overlap ('on'), or never looked at ('off'); see "
@@ -95,13 +98,15 @@ def drop_depth(obs: Any) -> Any:
 
 def run_fit(input_path: Path, out: Path, preset: str, *, seed: int = 0, iterations: int | None = None,
             use_depth: bool = True, progress: bool = True, threads: int | None = None,
-            refine_poses: str = "auto") -> dict[str, Any]:  # fmt: skip
-    """Load a capture, run s0_observe and s1_fit into ``out`` and return a JSON-ready report."""
+            refine_poses: str = "auto", depth: str = "auto",
+            depth_options: dict[str, str] | None = None) -> dict[str, Any]:  # fmt: skip
+    """Load a capture, run s0_observe and s1_fit into ``out`` and return a JSON-ready report (``depth``,
+    ``depth_options``: where the depth comes from, as :class:`holousd.stages._observe.ObserveConfig` says)."""
     from holousd._atomic import folder_transaction
     from holousd._paths import output_folder
     from holousd.io import load
     from holousd.stages import _fit, _observe
-    from holousd.stages._pipeline import OUTPUT_PATTERNS, checked
+    from holousd.stages._pipeline import OUTPUT_PATTERNS, checked, with_depth_source
 
     start = time.perf_counter()
     out = output_folder(out, "--out folder", create=False)
@@ -111,10 +116,14 @@ def run_fit(input_path: Path, out: Path, preset: str, *, seed: int = 0, iteratio
     config = replace(_fit.PRESETS[preset], seed=seed, progress=progress, threads=threads, refine_poses=refine_poses)
     if iterations is not None:
         config = replace(config, iterations=iterations)
-    obs = checked(obs, lambda line: print(line, file=sys.stderr, flush=True))
+    def say(line: str) -> None:
+        print(line, file=sys.stderr, flush=True)
+
+    observe = _observe.ObserveConfig(depth=depth if use_depth else "capture", depth_options=depth_options or {})
+    obs = with_depth_source(checked(obs, say), observe, config, say)
     out.mkdir(parents=True, exist_ok=True)
     with folder_transaction(out, OUTPUT_PATTERNS):
-        scene = _observe.run(obs, out)
+        scene = _observe.run(obs, out, observe)
         result = _fit.fit(scene, obs, config)
     wall = time.perf_counter() - start
     return {
@@ -122,6 +131,7 @@ def run_fit(input_path: Path, out: Path, preset: str, *, seed: int = 0, iteratio
         "out": str(out),
         "preset": preset,
         "depth": obs.depth_kind or "none",
+        "depth_prior": obs.metadata.get("depth_prior"),
         "seed": seed,
         "wall_time_s": wall,
         "fit_time_s": result.wall_time_s,
@@ -163,7 +173,7 @@ def _fit_command(args: argparse.Namespace) -> int:
 
     report = run_fit(args.input, args.out, args.preset, seed=args.seed, iterations=args.iterations,
                      use_depth=not args.no_depth, progress=not args.no_progress, threads=args.threads,
-                     refine_poses=args.refine_poses)  # fmt: skip
+                     refine_poses=args.refine_poses, depth=args.depth, depth_options=depth_options(args))  # fmt: skip
     with atomic_path(args.out / "fit_report.json") as tmp:
         tmp.write_text(json.dumps(report, indent=2))
     meshes = sum(1 for o in report["objects"] if o["faces"])

@@ -29,6 +29,13 @@ Pipeline per capture:
    object coordinates (origin at the bottom centre of the mesh's bounding box, pose = translation, turned
    about z by the room's yaw when the fit worked in the room's frame).
 
+Depth a prior estimated (``obs.metadata['depth_prior']``; a capture without depth gets ``stereo`` depth from its
+colour frames, :mod:`holousd.priors._depth`) is metric but sparse (textured pixels and edges) and centimetres off:
+the camera poses are not aligned against it (it was made from them), the room's yaw and tilt are not read from its
+normals, the background is a floor slab at the densest level of the room's points, an instance with few depth
+points gets its extent from its silhouettes' width around them and its initial shape from its masks (the visual
+hull carved where the depth saw free space), and whatever the refinement grows under the floor is cut again.
+
 The room's frame: a tracker's world frame has its x axis wherever the device pointed when it started, so the
 room's walls (and the furniture standing square to them) run at any angle to it. Grids and everything cut along
 object axes later (the physics set-up's flat bases and plane decomposition, the search's box primitives) fit a
@@ -523,6 +530,93 @@ def _extents_metric(frames: _Frames, fusion: np.ndarray, ids: list[int]) -> dict
     return out
 
 
+def _silhouette_width(views: Views, fusion: np.ndarray, k: int, centre: np.ndarray) -> float:
+    """How wide the instance's silhouette is at ``centre``, metres: per frame, the diagonal of the 2nd to 98th
+    percentile box of its mask's largest piece (a segmenter's false fragment elsewhere in the frame is not the
+    object), at the distance of ``centre``; the 80th percentile over the frames (a frame whose mask swallowed a
+    neighbour is not the object either)."""
+    from scipy.ndimage import label as connected
+
+    widths = []
+    for i in fusion:
+        mask = views.labels[i] == k
+        if np.count_nonzero(mask) < 4:
+            continue
+        pieces, count = connected(mask)
+        if count > 1:
+            mask = pieces == 1 + int(np.argmax(np.bincount(pieces.reshape(-1))[1:]))
+        rows, cols = np.nonzero(mask)
+        span = np.hypot(np.percentile(rows, 98) - np.percentile(rows, 2),
+                        np.percentile(cols, 98) - np.percentile(cols, 2))  # fmt: skip
+        distance = float(np.linalg.norm(views.poses[i][:3, 3] - centre))
+        widths.append(float(span) * distance / float(views.intrinsics[i][0, 0]))
+    return float(np.percentile(widths, 80)) if widths else 0.0
+
+
+def _centre_from_surroundings(views: Views, fusion: np.ndarray, k: int, ring: int = 4) -> np.ndarray | None:
+    """Where an instance without depth points of its own is: per frame, its mask's centre back-projected at the
+    median depth of the pixels just around the mask (what it rests on or stands in front of: a book on a
+    textured table top has none of its own), the median over the frames (world)."""
+    from scipy.ndimage import binary_dilation
+
+    assert views.depth is not None
+    found = []
+    for i in fusion:
+        mask = views.labels[i] == k
+        if np.count_nonzero(mask) < 4:
+            continue
+        around = binary_dilation(mask, iterations=ring) & ~mask & (views.depth[i] > 0)
+        if np.count_nonzero(around) < 5:
+            continue
+        z = float(np.median(views.depth[i][around]))
+        rows, cols = np.nonzero(mask)
+        kk = views.intrinsics[i]
+        cam = np.array([(np.median(cols) - kk[0, 2]) / kk[0, 0] * z, (np.median(rows) - kk[1, 2]) / kk[1, 1] * z, z])
+        found.append(views.poses[i][:3, :3] @ cam + views.poses[i][:3, 3])
+    return np.median(np.array(found), axis=0) if len(found) >= 3 else None
+
+
+def _extents_estimated(frames: _Frames, fusion: np.ndarray, ids: list[int], config: FitConfig,
+                       floor: float | None, dense: int = 1000) -> tuple[dict[int, tuple], set[int]]:  # fmt: skip
+    """Depth a prior estimated (stereo: depth on textured pixels and edges only, a small object's on a few dozen).
+    An instance with at least ``dense`` depth points keeps their extent, as with a depth sensor. One with fewer
+    reaches around the centre of its points (an instance with none: around where the depth just outside its
+    masks puts it) 0.4 of its silhouette's width (:func:`_silhouette_width`) each way; the visual hull's extent
+    is no bound here (a segmenter's masks carve the wrong piece: the video demo's cabinet kept the ball's). An
+    instance with neither keeps the hull's extent. Everything is cut at the floor. Also returns the ids of the
+    instances with fewer than ``dense`` points (initialised from their masks, :func:`_init_estimated`)."""
+    views = frames.views
+    assert views.depth is not None
+    found = _extents_metric(frames, fusion, ids)
+    out: dict[int, tuple] = {}
+    sparse = set()
+    hull: dict[int, tuple] | None = None
+    for k in ids:
+        count = sum(int(np.count_nonzero((views.labels[i] == k) & (views.depth[i] > 0))) for i in fusion)
+        if count >= dense and k in found:
+            lo, hi, depth = found[k]
+        else:
+            sparse.add(k)
+            centre = (found[k][0] + found[k][1]) / 2 if k in found else _centre_from_surroundings(views, fusion, k)
+            if centre is not None:
+                reach = 0.4 * _silhouette_width(views, fusion, k, centre)
+                lo, hi = centre - reach, centre + reach
+                if k in found:
+                    lo, hi = np.minimum(lo, found[k][0]), np.maximum(hi, found[k][1])
+                depth = found[k][2] if k in found else None
+            else:
+                hull = hull if hull is not None else _extents_hull(frames, fusion, ids, config)
+                if k not in hull:
+                    continue
+                lo, hi, depth = hull[k][0], hull[k][1], None
+        lo, hi = np.array(lo, float), np.array(hi, float)
+        if floor is not None:
+            lo[2] = max(lo[2], floor - 0.02)
+            hi[2] = max(hi[2], lo[2] + 0.02)
+        out[k] = (lo, hi, depth)
+    return out, sparse
+
+
 def _scene_bound_without_depth(views: Views, reach: float) -> tuple[np.ndarray, np.ndarray]:
     centres = views.poses[:, :3, 3]
     forward = views.poses[:, :3, 2]
@@ -619,6 +713,58 @@ def _init_hull(inst: _Instance, views: Views, fusion: np.ndarray, floor: float |
         occ &= pts[:, 2] >= floor
     sdf = signed_distance_from_occupancy(occ.reshape(fine.shape), fine.voxel_size)
     inst.sdf = np.clip(sdf, -trunc, trunc)
+
+
+def _init_estimated(inst: _Instance, views: Views, fusion: np.ndarray, floor: float | None,
+                    config: FitConfig) -> None:  # fmt: skip
+    """Depth a prior estimated (stereo: sparse, centimetres off at a few metres): the visual hull, carved further
+    where the fused depth saw free space in front of the instance's surface. Nothing is frozen: with depth on a
+    fifth of the pixels, most voxels no depth observed are still shaped by the masks and colours."""
+    _init_hull(inst, views, fusion, floor, config)
+    assert inst.grid is not None and inst.sdf is not None
+    trunc = config.trunc_voxels * inst.grid.voxel_size
+    frames = [int(i) for i in fusion if (views.labels[i] == inst.instance_id).any()] or [int(i) for i in fusion]
+    fused = fuse_tsdf(inst.grid.points(), views, inst.instance_id, trunc, frames)
+    hull = inst.sdf.reshape(-1)
+    # carved only where most of the frames that looked saw free space: a wrong match (a patch across a silhouette
+    # takes the depth behind it) sees through the inside of an object, where no right one votes (voxels deeper
+    # than the truncation behind a surface get no vote from it)
+    free = fused.free if fused.free is not None else fused.outside
+    carve = (free >= 2) & (free > fused.inside)
+    carved = np.where(carve, np.maximum(hull, fused.tsdf), hull)
+    inst.sdf = carved.reshape(inst.grid.shape).astype(np.float32)
+    inst.frozen = None
+
+
+def _floor_estimated(points: np.ndarray) -> float:
+    """The floor height from noisy background points (depth a prior estimated): the lowest level holding a large
+    share of them (the densest 2 cm band among the lowest third), not their low percentile, which the noise
+    pulls down by its own spread."""
+    z = np.sort(points[:, 2])
+    low = z[: max(1, len(z) // 3)]
+    edges = np.arange(low[0], low[-1] + 0.02, 0.005)
+    if len(edges) < 2:
+        return float(np.median(low))
+    counts = np.array([np.count_nonzero(np.abs(low - e) < 0.01) for e in edges])
+    best = float(edges[int(np.argmax(counts))])
+    near = z[np.abs(z - best) < 0.02]
+    return float(np.median(near)) if len(near) else best
+
+
+def _background_estimated(frames: _Frames, fusion: np.ndarray) -> tuple[float | None, MeshData | None]:
+    """Depth a prior estimated: a floor slab at the robust floor height under everything the cameras saw (a room
+    shell fused from sparse, noisy points is holes and lumps that objects fall through)."""
+    views = frames.views
+    assert views.depth is not None
+    bg = [views.backproject(int(i), (views.labels[i] == 0) & (views.depth[i] > 0), stride=3) for i in fusion]
+    cloud = np.concatenate(bg) if bg else np.zeros((0, 3))
+    if len(cloud) < 50:
+        return None, None
+    floor = _floor_estimated(cloud)
+    every = [views.backproject(int(i), views.depth[i] > 0, stride=7) for i in fusion]
+    allpts = np.concatenate(every + [views.poses[:, :3, 3]])
+    lo, hi = np.percentile(allpts, 1.0, axis=0), np.percentile(allpts, 99.0, axis=0)
+    return floor, _floor_slab(floor, lo - 0.5, hi + 0.5)
 
 
 def _resolve_overlaps(instances: list[_Instance]) -> None:
@@ -907,11 +1053,14 @@ def fit(scene: SceneGraph, obs: Observations, config: FitConfig | None = None,
     use_depth = obs.has_depth
     relative = use_depth and obs.depth_kind == "relative"
     metric = use_depth and obs.depth_kind == "metric"
+    # depth a prior estimated from the colour frames and these poses (stereo): aligning the poses against it would
+    # only fit the poses to their own depth
+    estimated = metric and obs.metadata.get("depth_prior") is not None
     if config.refine_poses not in ("auto", "on", "off"):
         raise HolousdError(f"FitConfig.refine_poses {config.refine_poses!r}: choose 'auto', 'on' or 'off'")
     frames, checked, aligned = _load_frames(obs, max(config.render_frames, config.fusion_frames), use_depth,
-                                            obs.has_normals, config.consensus, config.refine_poses,
-                                            config.poses)  # fmt: skip
+                                            obs.has_normals, config.consensus,
+                                            "off" if estimated else config.refine_poses, config.poses)  # fmt: skip
     views = frames.views
     if aligned is not None:
         timings["poses"] = aligned.wall_s
@@ -926,9 +1075,11 @@ def fit(scene: SceneGraph, obs: Observations, config: FitConfig | None = None,
               f"unknown ({share:.1f}% of {checked.checked}), {checked.flying} flying depth pixels dropped",
               file=sys.stderr)  # fmt: skip
     fusion = evenly_spaced(len(views), config.fusion_frames)
-    normals = [_world_normals(views, int(i)) for i in fusion] if metric else []  # once, before any turn
+    # once, before any turn; not from estimated depth (stereo's normals are too noisy to tell the room's yaw or a
+    # tilted world frame: the levelled demo capture read as tilted by 4 deg)
+    normals = [_world_normals(views, int(i)) for i in fusion] if metric and not estimated else []
     yaw = 0.0
-    if metric and config.align_room:
+    if normals and config.align_room:
         found, agreement = _room_yaw(normals)
         if abs(np.degrees(found)) >= config.min_yaw_deg and agreement >= 0.2:
             yaw = found
@@ -941,7 +1092,7 @@ def fit(scene: SceneGraph, obs: Observations, config: FitConfig | None = None,
         turn = np.eye(4)
         turn[:3, :3] = to_world.T
         views.poses = np.einsum("ij,njk->nik", turn, views.poses)  # the fit's frame: the room's walls on x, y
-    tilt = _up_tilt(normals) if metric else None
+    tilt = _up_tilt(normals) if normals else None
     if tilt is not None and tilt > config.max_tilt_deg:
         where = obs.camera_file or obs.root or "<observations>"
         print(f"warning: {where}: the capture's floor and tops face {tilt:.1f} deg away from its world z axis: "
@@ -951,8 +1102,12 @@ def fit(scene: SceneGraph, obs: Observations, config: FitConfig | None = None,
 
     t0 = time.perf_counter()
     floor: float | None = None
+    sparse: set[int] = set()  # instances a depth prior gave few points (initialised from their masks)
     background: MeshData | None = None
-    if metric:
+    if estimated:
+        floor, background = _background_estimated(frames, fusion)
+        extents, sparse = _extents_estimated(frames, fusion, ids, config, floor)
+    elif metric:
         floor, background = _background_metric(frames, fusion, config)
         extents = _extents_metric(frames, fusion, ids)
     else:
@@ -997,7 +1152,9 @@ def fit(scene: SceneGraph, obs: Observations, config: FitConfig | None = None,
                    unit="step", leave=False)  # fmt: skip
     for inst in instances:
         if inst.grid is not None:
-            if metric:
+            if estimated and inst.instance_id in sparse:
+                _init_estimated(inst, views, fusion, floor, config)
+            elif metric:
                 _init_metric(inst, views, fusion, floor, config)
             else:
                 _init_hull(inst, views, fusion, floor, config)
@@ -1013,6 +1170,13 @@ def fit(scene: SceneGraph, obs: Observations, config: FitConfig | None = None,
     timings["refine"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
+    if estimated and floor is not None:
+        # the refinement has no frozen voxels here and the masks say nothing about the floor: cut what it grew
+        # under the floor again (the demo's cabinet reached 5 cm into it and was thrown through it)
+        for inst in instances:
+            if inst.grid is not None and inst.sdf is not None:
+                below = (floor - inst.grid.points()[:, 2]).reshape(inst.grid.shape).astype(np.float32)
+                inst.sdf = np.maximum(inst.sdf, below)
     if config.resolve_overlaps and config.iterations > 0:
         _resolve_overlaps(instances)
     scene.push_layer(out_dir / FIT_LAYER, provenance="s1_fit", replace=True)

@@ -33,6 +33,13 @@ class ObserveConfig:
     """Replace an existing ``00_observe.usda`` in the output folder (it is only replaced once saving succeeds)."""
     provenance: str = "s0_observe"
     """Writer name recorded on every node."""
+    depth: str = "auto"
+    """Where the depth every stage reads comes from: 'auto' (the capture's; a capture without any gets ``stereo``
+    depth from its colour frames), 'capture' (the capture's only; without any, the masks alone), or a depth prior
+    by name (``stereo``, ``learned``, a ``holousd.depth`` plug-in; :mod:`holousd.priors._depth`), used in place of
+    the capture's depth when it has some."""
+    depth_options: dict[str, str] = field(default_factory=dict)
+    """Options of that depth prior (``{'weights': 'model.pt'}`` for ``learned``)."""
 
 
 @dataclass(kw_only=True)

@@ -398,6 +398,42 @@ def checked(obs: Any, log: Callable[[str], None]) -> Any:
     return obs.with_valid_depth(check)
 
 
+def with_depth_source(obs: Any, observe: _observe.ObserveConfig, fit: _fit.FitConfig,
+                      log: Callable[[str], None]) -> Any:  # fmt: skip
+    """``obs`` with the depth ``observe.depth`` chooses (see :class:`~holousd.stages._observe.ObserveConfig`): the
+    capture's as it is, or a depth prior's, estimated for the frames the fit reads before anything is written.
+    An unknown prior or a bad option is refused here, with nothing written."""
+    from holousd.priors._depth import make_depth_prior, with_depth_prior
+
+    name = observe.depth
+    if name == "capture" or (name == "auto" and obs.has_depth):
+        if observe.depth_options:
+            raise HolousdError(f"depth options {sorted(observe.depth_options)} given but no depth prior runs "
+                               f"(depth {name!r}); choose one, e.g. --depth stereo")  # fmt: skip
+        return obs
+    prior = make_depth_prior("stereo" if name == "auto" else name, **observe.depth_options)
+    where = obs.root or "<observations>"
+    if obs.has_depth:
+        log(f"depth: {where} has its own {obs.depth_kind} depth; using the {prior.name} prior's instead (--depth)")
+    frames = evenly_spaced(len(obs), max(fit.render_frames, fit.fusion_frames))
+    start = time.perf_counter()
+    log(f"depth: {where} has no depth; estimating it with the {prior.name} prior ({len(frames)} frames) ..."
+        if not obs.has_depth else f"depth: estimating it with the {prior.name} prior ({len(frames)} frames) ...")
+    with torch_threads(fit.threads):
+        out = with_depth_prior(obs, prior, frames, progress=fit.progress)
+        maps = [out.depth(int(i)) for i in frames]
+    given = float(np.mean([np.count_nonzero(m) / m.size for m in maps])) if maps else 0.0
+    values = np.concatenate([m[m > 0] for m in maps]) if maps else np.zeros(0)
+    unit = " m" if prior.kind == "metric" else ""
+    median = f", median {float(np.median(values)):.2f}{unit}" if len(values) else ""
+    log(f"depth: {prior.name} ({prior.kind}) gave {100 * given:.0f}% of the pixels a depth{median} in "
+        f"{time.perf_counter() - start:.1f} s")  # fmt: skip
+    if not len(values):
+        log(f"warning: the {prior.name} prior found no depth in any frame; fitting from the masks alone")
+        return obs
+    return out
+
+
 def _stage_configs(config: PipelineConfig) -> dict[str, Any]:
     return {"observe": config.observe, "fit": config.fit, "search": config.search, "physics": config.physics,
             "appearance": config.appearance}  # fmt: skip
@@ -512,7 +548,7 @@ def reconstruct(
     manifest = capture_manifest_hash(input_path, exclude=out)
     plan = _plan(out, stages, _stage_configs(config), manifest, resume)
     if any(not skip for _, _, skip, _ in plan):
-        obs = checked(obs, log)
+        obs = with_depth_source(checked(obs, log), config.observe, config.fit, log)
     out.mkdir(parents=True, exist_ok=True)
     with folder_transaction(out, OUTPUT_PATTERNS):
         records = _run_stages(plan, obs, out, config, log)

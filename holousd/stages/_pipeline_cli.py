@@ -52,6 +52,7 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
                      "aligned ones when they are clearly better than the capture's (poses from structure from motion "
                      "or a weak tracker; a good tracker's are kept), 'on' uses them whenever the frames overlap, "
                      "'off' never looks; the fit layer's cameras record how far each moved; default auto")  # fmt: skip
+    add_depth_arguments(rec)
     rec.add_argument("--no-appearance", action="store_true", help="skip the appearance stage")
     rec.add_argument("--no-progress", action="store_true", help="no progress bars on stderr")
     rec.set_defaults(handler=_reconstruct)
@@ -87,9 +88,9 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
                        help="comma-separated s2 search modes run with every preset (tree, ground, none): the "
                        "ablation rows; a mode other than tree is labelled PRESET@MODE (default: tree)")  # fmt: skip
     bench.add_argument("--sensor", default="clean", metavar="SENSORS",
-                       help="comma-separated sensor models of the generated captures (clean, phone, lidar, sfm; see "
-                       "holousd synth --help): each preset runs on each, side by side, a run on another sensor than "
-                       "clean labelled PRESET[SENSOR] (default: clean)")  # fmt: skip
+                       help="comma-separated sensor models of the generated captures (clean, phone, lidar, sfm, "
+                       "video; see holousd synth --help): each preset runs on each, side by side, a run on another "
+                       "sensor than clean labelled PRESET[SENSOR] (default: clean)")  # fmt: skip
     bench.add_argument("--data", type=Path, default=None, metavar="DIR",
                        help="existing synth output of the suite (default: generate into OUT/data)")  # fmt: skip
     bench.add_argument("--frames", type=positive_int, default=60, help="frames per generated scene")
@@ -114,9 +115,34 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     demo.add_argument("--seed", type=int, default=0, help="seed of generation and reconstruction")
     demo.add_argument("--threads", type=positive_int, default=None, help="torch CPU threads (default: torch's)")
     demo.add_argument("--search", choices=("tree", "ground", "none"), default="tree", help="s2 search mode")
-    demo.add_argument("--sensor", choices=("clean", "phone", "lidar", "sfm"), default="clean",
+    demo.add_argument("--sensor", choices=("clean", "phone", "lidar", "sfm", "video"), default="clean",
                       help="sensor model of the synthesised capture (see holousd synth --help)")  # fmt: skip
     demo.set_defaults(handler=_demo)
+
+
+def add_depth_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--depth`` and ``--depth-option`` (where the depth the stages read comes from)."""
+    parser.add_argument("--depth", default="auto", metavar="SOURCE",
+                        help="where depth comes from: 'auto' (the capture's; a capture without depth gets depth by "
+                        "multi-view stereo from its colour frames and poses), 'capture' (the capture's only; without "
+                        "it the masks alone, a visual hull), 'stereo', 'learned' (a monocular depth network from "
+                        "--depth-option weights=PATH) or a holousd.depth plug-in; default auto")  # fmt: skip
+    parser.add_argument("--depth-option", action="append", default=[], metavar="KEY=VALUE",
+                        help="an option of the depth prior, repeatable (learned: weights=PATH, kind=relative|metric, "
+                        "output=depth|inverse, device=cpu; stereo: near=, far=, window=, min_ncc=, ...)")  # fmt: skip
+
+
+def depth_options(args: argparse.Namespace) -> dict[str, str]:
+    """``--depth-option KEY=VALUE`` pairs as a dict (a one-line error for a malformed one)."""
+    from holousd._errors import HolousdError
+
+    out = {}
+    for item in args.depth_option:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise HolousdError(f"--depth-option {item!r}: write KEY=VALUE, e.g. weights=depth_model.pt2")
+        out[key.strip()] = value.strip()
+    return out
 
 
 def _reconstruct(args: argparse.Namespace) -> int:
@@ -126,7 +152,8 @@ def _reconstruct(args: argparse.Namespace) -> int:
 
     config = preset(args.preset, seed=args.seed, progress=not args.no_progress, threads=args.threads,
                     search=args.search)  # fmt: skip
-    config = replace(config, fit=replace(config.fit, refine_poses=args.refine_poses))
+    config = replace(config, fit=replace(config.fit, refine_poses=args.refine_poses),
+                     observe=replace(config.observe, depth=args.depth, depth_options=depth_options(args)))
     if args.no_appearance:
         config = replace(config, appearance=replace(config.appearance, enabled=False))
     if args.ray:

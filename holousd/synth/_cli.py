@@ -58,13 +58,14 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
     )
     synth.add_argument(
         "--sensor",
-        choices=("clean", "phone", "lidar", "sfm"),
+        choices=("clean", "phone", "lidar", "sfm", "video"),
         default="clean",
         help="what the capture device does to the frames: clean = the renderer's exact depth, normals, masks and "
         "poses; phone = a phone's LiDAR depth (half resolution, noisy, holes), a video segmenter's masks, a "
         "tracker's drifting poses, auto-exposure, blur, no normals; lidar = a depth camera on a tracked rig "
         "(less of each); sfm = that depth camera with poses off by about a centimetre and a degree per frame "
-        "(structure from motion, a weak tracker). The ground truth in gt/ stays exact",
+        "(structure from motion, a weak tracker); video = the phone without its depth sensor (colour, masks and poses "
+        "only). The ground truth in gt/ stays exact",
     )
     synth.add_argument("--overwrite", action="store_true", help="replace scene folders generated before")
     synth.add_argument("--no-progress", action="store_true", help="do not show progress bars on stderr")

@@ -255,7 +255,7 @@ class SynthCapture:
             gains = sensor.exposures(n, seed)
             rgb = noisy(lambda i: sensor.rgb(self.frame(i).rgb, self.flow(i), gains[i], seed, i))
             masks = noisy(lambda i: sensor.mask(self.frame(i).mask, seed, i))
-            depth = noisy(lambda i: sensor.depth(self.frame(i).depth, seed, i))
+            depth = noisy(lambda i: sensor.depth(self.frame(i).depth, seed, i)) if sensor.has_depth else None
             normals = lazy("normal") if sensor.normals else None
             poses = sensor.poses(self.poses, seed)
         return Observations(
@@ -267,6 +267,6 @@ class SynthCapture:
             poses=poses,
             width=self.width,
             height=self.height,
-            depth_kind="metric",
+            depth_kind="metric" if depth is not None else None,
             instance_names=instance_names,
         )

@@ -32,6 +32,8 @@ colour (a phone camera in video mode)
     ``shot * I + read``, I in [0, 1]); 8-bit quantisation.
 normals
     absent (``normals=False``): devices do not measure them.
+no depth sensor
+    ``has_depth=False``: no depth channel at all (a phone or camera video without LiDAR; ``video``).
 
 The capture's ground truth (``gt/``) stays exact; ``gt/graph.json`` records the sensor's parameters and
 ``gt/cameras.json`` the true camera poses, so that pose errors can be measured.
@@ -85,8 +87,9 @@ class SensorModel:
     wb_step: float = 0.0
     shot: float = 0.0
     read: float = 0.0
-    # normals
+    # channels the device gives at all
     normals: bool = True
+    has_depth: bool = True
 
     @property
     def clean(self) -> bool:
@@ -287,6 +290,9 @@ SENSORS: dict[str, SensorModel] = {
 # The lidar's depth camera with poses from structure from motion or a tracker that lost track now and then: each
 # frame off by about a centimetre and a degree (depth better than poses: what s1_fit's pose alignment is for).
 SENSORS["sfm"] = replace(SENSORS["lidar"], name="sfm", drift_m=0.002, drift_deg=0.12, jitter_m=0.006, jitter_deg=0.4)
+# A phone video without a depth sensor: the phone's colour, segmenter masks and tracker poses, no depth at all (what
+# s1_fit's depth priors are for: multi-view stereo from the colour frames, or a monocular network).
+SENSORS["video"] = replace(SENSORS["phone"], name="video", has_depth=False)
 
 
 def sensor_model(name: str) -> SensorModel:
