@@ -54,6 +54,15 @@ def test_stereo_gives_metric_depth_where_the_frames_agree(stack: Observations) -
     assert estimated.depth(frames[0]) is estimated.depth(frames[0])
 
 
+def test_large_frames_are_swept_smaller_and_the_depth_comes_back_at_full_size(stack: Observations) -> None:
+    prior = make_depth_prior("stereo", max_side="48")  # 96x72 swept at 48x36: memory and time grow with pixels
+    depth, truth = prior.estimate(stack, 6), stack.depth(6)
+    assert depth.shape == truth.shape
+    sel = (depth > 0) & (truth > 0)
+    assert sel.mean() > 0.03, sel.mean()
+    assert np.median(np.abs(depth[sel] - truth[sel]) / truth[sel]) < 0.08
+
+
 def test_stereo_keeps_nothing_on_a_textureless_frame_or_where_neighbours_disagree(stack: Observations) -> None:
     config = StereoConfig()
     h, w = stack.height, stack.width
@@ -110,6 +119,8 @@ def test_fit_without_depth_uses_stereo_and_places_objects_better_than_the_masks_
         (["--depth", "stereo", "--depth-option", "window=4"], "window 4 must be odd"),
         (["--depth", "stereo", "--depth-option", "planes=9"], "unknown option 'planes'"),
         (["--depth", "capture", "--depth-option", "window=5"], "no depth prior runs"),
+        (["--depth", "stereo", "--depth-option", "max_planes=0"], "need 3 <= min_planes <= max_planes"),
+        (["--no-depth", "--depth", "stereo"], "--no-depth with --depth stereo: choose one"),
     ],
 )
 def test_bad_depth_options_are_refused_before_anything_is_written(
@@ -151,6 +162,8 @@ def test_learned_depth_prior_loads_a_saved_network_from_the_path_it_is_given(sta
     inverse = make_depth_prior("learned", weights=str(weights), output="inverse", kind="metric")
     np.testing.assert_allclose(inverse.estimate(stack, 3), 1.0 / (1.0 + 2.0 * (1.0 - green)), rtol=1e-5)
     assert inverse.kind == "metric"
+    with pytest.raises(HolousdError, match="output=inverse needs kind=metric"):
+        make_depth_prior("learned", weights=str(weights), output="inverse")
     with pytest.raises(HolousdError, match="kind 'absolute'"):
         make_depth_prior("learned", weights=str(weights), kind="absolute")
     corrupt = tmp_path / "corrupt.pt"

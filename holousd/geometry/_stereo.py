@@ -50,7 +50,7 @@ class StereoConfig:
     neighbours: int = 4
     """Frames swept against each reference frame."""
     best_of: int = 2
-    """Best-scoring neighbours averaged per depth."""
+    """Best-scoring neighbours averaged per depth: 1 or 2."""
     min_angle_deg: float = 2.0
     """Smallest triangulation angle of a neighbour at the scene's centre, deg (narrower: depth too coarse)."""
     max_angle_deg: float = 25.0
@@ -67,6 +67,11 @@ class StereoConfig:
     """Relative depth difference under which two frames agree about a point."""
     min_agree: int = 1
     """Neighbouring frames that must agree about a pixel's depth for it to be kept (0: no check)."""
+    max_side: int = 320
+    """Frames with a longer side are swept at this size (intrinsics scaled; the depth brought back to full size,
+    nearest): memory and time grow with pixels x planes (a 640x480 frame took 55 s and 5.6 GB at full size)."""
+    chunk_pixels: int = 2_000_000
+    """Pixels x planes swept at once (bounds the memory of a sweep to about 100 bytes each)."""
 
 
 @dataclass(kw_only=True)
@@ -186,29 +191,34 @@ def stereo_depth(i: int, rgb: Sequence[np.ndarray], intrinsics: np.ndarray, pose
 
     best1 = torch.full((planes, h, w), -1.0)
     best2 = torch.full((planes, h, w), -1.0)
+    chunk = max(1, int(config.chunk_pixels // max(1, h * w)))  # planes swept at once: bounded memory
     for j in neighbours:
         rel = np.linalg.inv(np.asarray(poses[j], np.float64)) @ pose_i  # reference camera -> source camera
         a = torch.tensor(rays @ rel[:3, :3].T, dtype=torch.float32)  # [H, W, 3]: direction in the source camera
         t = torch.tensor(rel[:3, 3], dtype=torch.float32)
         ks = np.asarray(intrinsics[j], np.float64)
-        p = depths[:, None, None, None] * a[None] + t  # [D, H, W, 3]
-        z = p[..., 2]
-        zs = z.clamp_min(1e-6)
-        u = ks[0, 0] * p[..., 0] / zs + ks[0, 2]
-        v = ks[1, 1] * p[..., 1] / zs + ks[1, 2]
-        inside = (z > 1e-3) & (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
-        grid = torch.stack([u / (w - 1) * 2 - 1, v / (h - 1) * 2 - 1], -1)
-        src = torch.from_numpy(_grey(rgb[j]))[None, None].expand(planes, 1, h, w)
-        warped = F.grid_sample(src, grid, mode="bilinear", padding_mode="border", align_corners=True)  # [D,1,H,W]
-        mu_s = _box(warped, win)
-        var_s = (_box(warped * warped, win) - mu_s**2).clamp_min(0.0)
-        cov = _box(warped * r, win) - mu_s * mu_r
-        ncc = (cov / torch.sqrt(var_s * var_r + 1e-3))[:, 0]
-        full = _box(inside[:, None].float(), win)[:, 0] > 0.999  # the whole window lands inside the source
-        ncc = torch.where(full, ncc, torch.tensor(-1.0))
-        best2 = torch.maximum(best2, torch.minimum(best1, ncc))
-        best1 = torch.maximum(best1, ncc)
-        del p, u, v, grid, warped, mu_s, var_s, cov
+        grey = torch.from_numpy(_grey(rgb[j]))[None, None]
+        for s in range(0, planes, chunk):
+            d = depths[s : s + chunk]
+            p = d[:, None, None, None] * a[None] + t  # [D, H, W, 3]
+            z = p[..., 2]
+            zs = z.clamp_min(1e-6)
+            u = ks[0, 0] * p[..., 0] / zs + ks[0, 2]
+            v = ks[1, 1] * p[..., 1] / zs + ks[1, 2]
+            inside = (z > 1e-3) & (u >= 0) & (u <= w - 1) & (v >= 0) & (v <= h - 1)
+            grid = torch.stack([u / (w - 1) * 2 - 1, v / (h - 1) * 2 - 1], -1)
+            src = grey.expand(len(d), 1, h, w)
+            warped = F.grid_sample(src, grid, mode="bilinear", padding_mode="border", align_corners=True)  # [D,1,H,W]
+            mu_s = _box(warped, win)
+            var_s = (_box(warped * warped, win) - mu_s**2).clamp_min(0.0)
+            cov = _box(warped * r, win) - mu_s * mu_r
+            ncc = (cov / torch.sqrt(var_s * var_r + 1e-3))[:, 0]
+            full = _box(inside[:, None].float(), win)[:, 0] > 0.999  # the whole window lands inside the source
+            ncc = torch.where(full, ncc, torch.tensor(-1.0))
+            b1, b2 = best1[s : s + chunk], best2[s : s + chunk]
+            b2.copy_(torch.maximum(b2, torch.minimum(b1, ncc)))
+            b1.copy_(torch.maximum(b1, ncc))
+            del p, u, v, grid, warped, mu_s, var_s, cov
     score = best1 if config.best_of <= 1 or len(neighbours) < 2 else (best1 + best2) / 2
     top, arg = score.max(0)  # [H, W]
     # the best score outside the winner's peak (more than two planes away)

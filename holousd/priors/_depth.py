@@ -12,8 +12,8 @@ is. A depth prior gives such a capture a depth channel before any stage reads it
 ``learned`` (built in, needs weights)
     a monocular depth network the user saved (``torch.export.save`` or TorchScript), loaded from ``weights=PATH``;
     never downloaded. It takes a [1, 3, H, W] float RGB tensor in [0, 1] and returns [1, 1, H, W] (or [1, H, W],
-    [H, W]) depth; ``output=inverse`` for a network that predicts inverse depth; ``kind=relative`` (default: valid
-    up to a scale and shift per frame, which the fit solves for) or ``kind=metric`` (a metric-depth network).
+    [H, W]) depth; ``output=inverse`` for a metric network that predicts inverse depth; ``kind=relative``
+    (default: valid up to a scale and shift per frame, which the fit solves for) or ``kind=metric``.
 ``anchor=stereo`` (any relative prior)
     the prior's depth put on the ``stereo`` depth of the same frame (a scale and shift per frame,
     :class:`AnchoredDepthPrior`): dense metric depth, where stereo alone has it on textured pixels only.
@@ -86,14 +86,22 @@ class StereoDepthPrior:
         except (TypeError, ValueError):
             raise HolousdError(f"depth prior 'stereo': options must be numbers, got {options}") from None
         self.config = StereoConfig(**values)
-        if self.config.window < 3 or self.config.window % 2 == 0:
-            raise HolousdError(f"depth prior 'stereo': window {self.config.window} must be odd and at least 3")
-        if not 0 < self.config.near < self.config.far:
-            raise HolousdError(f"depth prior 'stereo': need 0 < near < far, got {self.config.near}, {self.config.far}")
+        c = self.config
+        if c.window < 3 or c.window % 2 == 0:
+            raise HolousdError(f"depth prior 'stereo': window {c.window} must be odd and at least 3")
+        if not 0 < c.near < c.far:
+            raise HolousdError(f"depth prior 'stereo': need 0 < near < far, got {c.near}, {c.far}")
+        if not (3 <= c.min_planes <= c.max_planes and c.neighbours >= 1 and c.best_of in (1, 2) and c.max_side >= 16
+                and c.step_px > 0 and c.chunk_pixels >= 1):  # fmt: skip
+            raise HolousdError("depth prior 'stereo': need 3 <= min_planes <= max_planes, neighbours >= 1, best_of 1 "
+                               "or 2, max_side >= 16, step_px > 0 and chunk_pixels >= 1")  # fmt: skip
         self._raw: dict[int, np.ndarray] = {}
         self._pool: list[int] | None = None
         self._neighbours: dict[int, list[int]] = {}
-        self._key: int | None = None
+        self._obs: Observations | None = None
+        self._scale = 1.0
+        self._size = (0, 0)
+        self._intrinsics: np.ndarray | None = None
 
     def prepare(self, obs: Observations, frames: Sequence[int], progress: bool = False) -> None:
         """Sweep ``frames`` (neighbours drawn from them) before any is asked for, with a progress bar."""
@@ -112,11 +120,37 @@ class StereoDepthPrior:
             bar.close()
 
     def _bind(self, obs: Observations, frames: Sequence[int] | None = None) -> None:
-        if self._key != id(obs) or (frames is not None and self._pool != [int(i) for i in frames]):
-            self._key = id(obs)
+        if self._obs is not obs or (frames is not None and self._pool != [int(i) for i in frames]):
+            self._obs = obs
             self._pool = [int(i) for i in frames] if frames is not None else list(range(len(obs)))
             self._raw.clear()
             self._neighbours.clear()
+            longest = max(obs.width, obs.height)
+            self._scale = min(1.0, self.config.max_side / longest)
+            self._size = (max(1, round(obs.height * self._scale)), max(1, round(obs.width * self._scale)))
+            k = np.array(obs.intrinsics, np.float64)
+            if self._scale < 1.0:  # pixel centres at integers: u' = (u + 0.5) * s - 0.5
+                sx, sy = self._size[1] / obs.width, self._size[0] / obs.height
+                k[:, 0, 0] *= sx
+                k[:, 1, 1] *= sy
+                k[:, 0, 2] = (k[:, 0, 2] + 0.5) * sx - 0.5
+                k[:, 1, 2] = (k[:, 1, 2] + 0.5) * sy - 0.5
+            self._intrinsics = k
+
+    def _small(self, image: np.ndarray, labels: bool = False) -> np.ndarray:
+        """``image`` at the sweep's size: colour averaged over each new pixel's area, labels by nearest pixel."""
+        h, w = self._size
+        if (h, w) == image.shape[:2]:
+            return image
+        if labels:
+            rows = np.minimum(((np.arange(h) + 0.5) * image.shape[0] / h).astype(int), image.shape[0] - 1)
+            cols = np.minimum(((np.arange(w) + 0.5) * image.shape[1] / w).astype(int), image.shape[1] - 1)
+            return image[np.ix_(rows, cols)]
+        import torch
+        import torch.nn.functional as F
+
+        x = torch.from_numpy(np.ascontiguousarray(image[..., :3], dtype=np.float32)).permute(2, 0, 1)[None]
+        return F.interpolate(x, size=(h, w), mode="area")[0].permute(1, 2, 0).numpy()
 
     def neighbours(self, obs: Observations, i: int) -> list[int]:
         """The frames frame ``i`` is swept against."""
@@ -136,12 +170,14 @@ class StereoDepthPrior:
 
         if i not in self._raw:
             near = self.neighbours(obs, i)
-            images = {j: obs.rgb(j) for j in [i, *near]}
-            self._raw[i] = stereo_depth(i, images, obs.intrinsics, obs.poses, near, self.config, obs.mask(i)).depth
+            images = {j: self._small(obs.rgb(j)) for j in [i, *near]}
+            mask = obs.mask(i)
+            labels = self._small(mask, labels=True) if mask is not None else None
+            self._raw[i] = stereo_depth(i, images, self._intrinsics, obs.poses, near, self.config, labels).depth
         return self._raw[i]
 
     def estimate(self, obs: Observations, i: int) -> np.ndarray:
-        """Frame ``i``'s depth, kept where at least ``min_agree`` of its neighbours' sweeps agree."""
+        """Frame ``i``'s depth, kept where at least ``min_agree`` of its neighbours' sweeps agree (at full size)."""
         from holousd.geometry._stereo import consistent
 
         self._bind(obs)
@@ -149,7 +185,12 @@ class StereoDepthPrior:
         depth = {i: self._sweep(obs, i)}
         for j in near:
             depth[j] = self._sweep(obs, j)
-        return consistent(i, depth, obs.intrinsics, obs.poses, near, self.config)
+        kept = consistent(i, depth, self._intrinsics, obs.poses, near, self.config)
+        if kept.shape == (obs.height, obs.width):
+            return kept
+        rows = np.minimum((np.arange(obs.height) * kept.shape[0] / obs.height).astype(int), kept.shape[0] - 1)
+        cols = np.minimum((np.arange(obs.width) * kept.shape[1] / obs.width).astype(int), kept.shape[1] - 1)
+        return kept[np.ix_(rows, cols)]
 
 
 class LearnedDepthPrior:
@@ -168,6 +209,9 @@ class LearnedDepthPrior:
             raise HolousdError(f"depth prior 'learned': kind {kind!r}; choose 'relative' or 'metric'")
         if output not in ("depth", "inverse"):
             raise HolousdError(f"depth prior 'learned': output {output!r}; choose 'depth' or 'inverse'")
+        if output == "inverse" and kind == "relative":
+            raise HolousdError("depth prior 'learned': output=inverse needs kind=metric (a relative inverse depth "
+                               "has its unknown shift on 1/depth, no scale and shift of depth undoes it)")  # fmt: skip
         path = Path(weights)
         if not path.is_file():
             raise HolousdError(f"{path}: no such weights file; give the saved depth network (torch.export.save)")
@@ -286,6 +330,8 @@ def make_depth_prior(name: str, **options: Any) -> DepthPrior:
         raise
     except TypeError as exc:
         raise HolousdError(f"depth prior {name!r}: bad options {sorted(options)} ({exc})") from None
+    except Exception as exc:  # noqa: BLE001 - a plug-in's own failure: one line naming it
+        raise HolousdError(f"depth prior {name!r}: its factory failed ({type(exc).__name__}: {exc})") from None
     if not isinstance(prior, DepthPrior) or getattr(prior, "kind", None) not in ("metric", "relative"):
         raise HolousdError(f"depth prior {name!r}: its factory returned {type(prior).__name__}, not a depth prior "
                            "(a name, a kind 'metric' or 'relative' and estimate(obs, i))")  # fmt: skip

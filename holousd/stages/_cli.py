@@ -110,6 +110,10 @@ def run_fit(input_path: Path, out: Path, preset: str, *, seed: int = 0, iteratio
 
     start = time.perf_counter()
     out = output_folder(out, "--out folder", create=False)
+    from holousd._errors import HolousdError
+
+    if not use_depth and depth not in ("auto", "capture"):
+        raise HolousdError(f"--no-depth with --depth {depth}: choose one (--no-depth fits from the masks alone)")
     obs = load(input_path)
     if not use_depth:
         obs = drop_depth(obs)

@@ -1056,6 +1056,9 @@ def fit(scene: SceneGraph, obs: Observations, config: FitConfig | None = None,
     # depth a prior estimated from the colour frames and these poses (stereo): aligning the poses against it would
     # only fit the poses to their own depth
     estimated = metric and obs.metadata.get("depth_prior") is not None
+    if estimated and config.refine_poses == "on":
+        print(f"warning: {obs.root or '<observations>'}: refine_poses 'on' is not applied: the depth was estimated "
+              f"from these poses ({obs.metadata['depth_prior']})", file=sys.stderr)  # fmt: skip
     if config.refine_poses not in ("auto", "on", "off"):
         raise HolousdError(f"FitConfig.refine_poses {config.refine_poses!r}: choose 'auto', 'on' or 'off'")
     frames, checked, aligned = _load_frames(obs, max(config.render_frames, config.fusion_frames), use_depth,
