@@ -207,7 +207,7 @@ def test_depth_prior_plug_ins_register_under_their_entry_point_group(monkeypatch
     assert available_depth_priors() == ["stereo", "learned", "broken", "flat", "notaprior"]
     estimated = with_depth_prior(stack, make_depth_prior("flat", level="1.5"), frames=[0])
     assert estimated.depth_kind == "metric" and float(estimated.depth(5).max()) == 1.5
-    with pytest.raises(HolousdError, match="its plug-in tests:broken does not load"):
+    with pytest.raises(HolousdError, match=r"depth prior 'broken' \(tests:broken\): cannot be loaded"):
         make_depth_prior("broken")
     with pytest.raises(HolousdError, match="not a depth prior"):
         make_depth_prior("notaprior")

@@ -113,16 +113,42 @@ def _builtin() -> dict[str, Callable[..., CompletionProposer]]:
             "learned": b.LearnedProposer}  # fmt: skip
 
 
-def _entry_points() -> dict[str, Any]:
+def group_entry_points(group: str) -> dict[str, Any]:
+    """The installed entry points of ``group``, by name."""
     from importlib.metadata import entry_points
 
-    return {ep.name: ep for ep in entry_points(group=ENTRY_POINT_GROUP)}
+    return {ep.name: ep for ep in entry_points(group=group)}
+
+
+def plugin_names(builtin: dict[str, Any], found: dict[str, Any]) -> list[str]:
+    """The built-in names, then the installed plug-ins' (``found``: entry points by name) not among them."""
+    names = list(builtin)
+    return names + sorted(n for n in found if n not in names)
+
+
+def plugin_factory(what: str, name: str, builtin: dict[str, Any], found: dict[str, Any], group: str) -> Any:
+    """The factory of the ``what`` (e.g. 'completion proposer') called ``name``: built in, or the entry point of
+    that name in ``found`` loaded. Raises :class:`HolousdError` naming the choices, or the plug-in that fails."""
+    if name in builtin:
+        return builtin[name]
+    entry = found.get(name)
+    if entry is None:
+        raise HolousdError(f"{what} {name!r}: none by that name; available: {', '.join(plugin_names(builtin, found))} "
+                           f"(plug-ins register under the entry-point group {group!r})")  # fmt: skip
+    try:
+        return entry.load()
+    except Exception as exc:  # noqa: BLE001 - a broken plug-in is the user's to fix: say which and why
+        raise HolousdError(f"{what} {name!r} ({entry.value}): cannot be loaded ({exc}); reinstall the package that "
+                           "provides it") from None  # fmt: skip
+
+
+def _entry_points() -> dict[str, Any]:
+    return group_entry_points(ENTRY_POINT_GROUP)
 
 
 def available_proposers() -> list[str]:
     """Names of the built-in proposers, then the installed plug-ins'."""
-    names = list(_builtin())
-    return names + sorted(n for n in _entry_points() if n not in names)
+    return plugin_names(_builtin(), _entry_points())
 
 
 def make_proposer(name: str, **options: Any) -> CompletionProposer:
@@ -131,20 +157,7 @@ def make_proposer(name: str, **options: Any) -> CompletionProposer:
     Raises:
         HolousdError: no proposer has that name, the plug-in cannot be loaded, or it does not make a proposer.
     """
-    builtin = _builtin()
-    if name in builtin:
-        factory: Any = builtin[name]
-    else:
-        found = _entry_points().get(name)
-        if found is None:
-            raise HolousdError(f"completion proposer {name!r}: none by that name; available: "
-                               f"{', '.join(available_proposers())} (plug-ins register under the entry-point "
-                               f"group {ENTRY_POINT_GROUP!r})")  # fmt: skip
-        try:
-            factory = found.load()
-        except Exception as exc:  # noqa: BLE001 - a broken plug-in is the user's to fix: say which and why
-            raise HolousdError(f"completion proposer {name!r} ({found.value}): cannot be loaded ({exc}); "
-                               "reinstall the package that provides it") from None  # fmt: skip
+    factory = plugin_factory("completion proposer", name, _builtin(), _entry_points(), ENTRY_POINT_GROUP)
     proposer = factory(**options)
     if not isinstance(proposer, CompletionProposer):
         raise HolousdError(f"completion proposer {name!r}: its factory returned {type(proposer).__name__}, which "

@@ -37,6 +37,7 @@ from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 import numpy as np
 
 from holousd._errors import HolousdError
+from holousd.priors._api import group_entry_points, plugin_factory, plugin_names
 
 if TYPE_CHECKING:
     from holousd.io import Observations
@@ -284,15 +285,12 @@ def _builtin() -> dict[str, Callable[..., Any]]:
 
 
 def _entry_points() -> dict[str, Any]:
-    from importlib.metadata import entry_points
-
-    return {ep.name: ep for ep in entry_points(group=DEPTH_ENTRY_POINT_GROUP)}
+    return group_entry_points(DEPTH_ENTRY_POINT_GROUP)
 
 
 def available_depth_priors() -> list[str]:
     """Names of the built-in depth priors, then the installed plug-ins'."""
-    names = list(_builtin())
-    return names + sorted(n for n in _entry_points() if n not in names)
+    return plugin_names(_builtin(), _entry_points())
 
 
 def make_depth_prior(name: str, **options: Any) -> DepthPrior:
@@ -310,20 +308,7 @@ def make_depth_prior(name: str, **options: Any) -> DepthPrior:
             raise HolousdError(f"depth prior {name!r}: anchor=stereo is for a relative prior; this one is "
                                f"{inner.kind}")  # fmt: skip
         return AnchoredDepthPrior(inner, StereoDepthPrior())
-    builtin = _builtin()
-    if name in builtin:
-        factory: Any = builtin[name]
-    else:
-        found = _entry_points().get(name)
-        if found is None:
-            raise HolousdError(f"depth prior {name!r}: none by that name; available: "
-                               f"{', '.join(available_depth_priors())} (plug-ins register under the entry-point "
-                               f"group {DEPTH_ENTRY_POINT_GROUP!r})")  # fmt: skip
-        try:
-            factory = found.load()
-        except Exception as exc:  # noqa: BLE001 - a broken plug-in: one line naming it
-            raise HolousdError(f"depth prior {name!r}: its plug-in {found.value} does not load "
-                               f"({type(exc).__name__}: {exc})") from None  # fmt: skip
+    factory = plugin_factory("depth prior", name, _builtin(), _entry_points(), DEPTH_ENTRY_POINT_GROUP)
     try:
         prior = factory(**options)
     except HolousdError:
