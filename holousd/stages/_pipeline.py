@@ -429,7 +429,8 @@ def with_depth_source(obs: Any, observe: _observe.ObserveConfig, fit: _fit.FitCo
     log(f"depth: {prior.name} ({prior.kind}) gave {100 * given:.0f}% of the pixels a depth{median} in "
         f"{time.perf_counter() - start:.1f} s")  # fmt: skip
     if not len(values):
-        log(f"warning: the {prior.name} prior found no depth in any frame; fitting from the masks alone")
+        fallback = f"using the capture's {obs.depth_kind} depth" if obs.has_depth else "fitting from the masks"
+        log(f"warning: the {prior.name} prior found no depth in any frame; {fallback}")
         return obs
     return out
 
