@@ -28,6 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from holousd.geometry._grid import _near_label_edge
+
 __all__ = ["StereoConfig", "StereoDepth", "consistent", "stereo_depth", "stereo_neighbours"]
 
 
@@ -142,16 +144,6 @@ def _box(x, window: int):  # noqa: ANN001, ANN202 - torch tensors [B, 1, H, W]
     return F.avg_pool2d(x, window, stride=1, padding=window // 2, count_include_pad=False)
 
 
-def _label_edges(labels: np.ndarray, radius: int) -> np.ndarray:
-    """[H, W] bool: pixels within ``radius`` of a pixel with another instance id."""
-    from scipy.ndimage import maximum_filter, minimum_filter
-
-    if radius <= 0:
-        return np.zeros(labels.shape, bool)
-    size = 2 * radius + 1
-    return maximum_filter(labels, size=size) != minimum_filter(labels, size=size)
-
-
 def stereo_depth(i: int, rgb: Sequence[np.ndarray], intrinsics: np.ndarray, poses: np.ndarray,
                  neighbours: Sequence[int], config: StereoConfig | None = None,
                  labels: np.ndarray | None = None) -> StereoDepth:  # fmt: skip
@@ -241,7 +233,8 @@ def stereo_depth(i: int, rgb: Sequence[np.ndarray], intrinsics: np.ndarray, pose
     keep &= (top - runner).numpy() >= config.min_margin
     keep &= (arg.numpy() > 0) & (arg.numpy() < planes - 1)  # a winner at the sweep's end is out of range
     if labels is not None:
-        keep &= ~_label_edges(np.asarray(labels), config.edge)
+        if config.edge > 0:
+            keep &= ~_near_label_edge(np.asarray(labels), 2 * config.edge + 1)
     return StereoDepth(depth=np.where(keep, depth, 0.0).astype(np.float32), score=top_n, neighbours=list(neighbours))
 
 
