@@ -192,16 +192,19 @@ def test_symmetry_completes_the_legs_no_camera_saw_and_carries_them_to_the_floor
     assert static_stability((four[0].mesh.points, four[0].mesh.faces), 0.0).stands, four[0].note
 
 
+class _Fixed:
+    """A proposer that always gives one fixed mesh under a fixed name."""
+
+    def __init__(self, name: str, mesh: MeshData) -> None:
+        self.name, self.mesh = name, mesh
+
+    def propose(self, evidence: ObjectEvidence, k: int, seed: int) -> list[Candidate]:
+        return [Candidate(proposer=self.name, seed=seed, mesh=self.mesh)]
+
+
 def test_the_rejection_limit_is_relative_to_the_fitted_shape(truth: SceneGraph, capture: Path) -> None:
     """The fitted shape is never rejected, and its own seen-through share (what the fit's cells give), up to the
     limit again, is added to the other candidates' limit: a candidate seen through as much as the fit is kept."""
-
-    class _Fixed:
-        def __init__(self, name: str, mesh: MeshData) -> None:
-            self.name, self.mesh = name, mesh
-
-        def propose(self, evidence: ObjectEvidence, k: int, seed: int) -> list[Candidate]:
-            return [Candidate(proposer=self.name, seed=seed, mesh=self.mesh)]
 
     table = object_evidence(truth, load(capture), "table_1")
     off = MeshData(points=table.mesh.points + [0.01, 0.0, 0.0], faces=table.mesh.faces)  # 1 cm off: ~8% through
@@ -210,6 +213,26 @@ def test_the_rejection_limit_is_relative_to_the_fitted_shape(truth: SceneGraph, 
     (_, fitted), (_, other) = propose(table, [_Fixed("stage1", off), _Fixed("other", off)], k=1)
     assert not fitted.rejected and not other.rejected
     assert seen_through_limit(0.3) == pytest.approx(0.1) and seen_through_limit(0.0) == pytest.approx(0.05)
+
+
+def test_a_candidate_that_explains_the_observations_much_worse_than_the_fit_is_rejected(truth: SceneGraph,
+                                                                                         capture: Path) -> None:
+    """With ``max_obs_gain`` a candidate whose E_obs exceeds the fitted shape's by more than that is rejected,
+    however little of it is seen through: the table grown by 40% about its centre (its top 30 cm above the
+    truth, its silhouette far past the masks) is no completion of the table the cameras saw. A candidate a few
+    millimetres off the fit stays; without the limit the grown one stays too (the control)."""
+
+    table = object_evidence(truth, load(capture), "table_1")
+    points = table.mesh.points
+    centre = (points.min(axis=0) + points.max(axis=0)) / 2
+    grown = MeshData(points=centre + 1.4 * (points - centre), faces=table.mesh.faces)
+    near = MeshData(points=points + [0.003, 0.0, 0.0], faces=table.mesh.faces)
+    proposers = [_Fixed("stage1", table.mesh), _Fixed("grown", grown), _Fixed("near", near)]
+    (_, fitted), (_, big), (_, small) = propose(table, proposers, k=1, max_seen_through=1.0, max_obs_gain=0.25)
+    assert not fitted.rejected and not small.rejected and small.energy < fitted.energy + 0.25
+    assert big.rejected and big.energy > fitted.energy + 0.25
+    (_, _), (_, big), (_, _) = propose(table, proposers, k=1, max_seen_through=1.0)
+    assert not big.rejected
 
 
 def test_the_floor_under_an_object_is_the_rooms_where_no_camera_saw_it(truth: SceneGraph, capture: Path) -> None:

@@ -31,7 +31,7 @@ from holousd.priors._depth import (
     make_depth_prior,
     with_depth_prior,
 )
-from holousd.priors._energy import ObservationEnergy, observation_energy, scored_among, seen_through_limit
+from holousd.priors._energy import Limit, ObservationEnergy, observation_energy, scored_among, seen_through_limit
 from holousd.priors._evidence import object_evidence, object_neighbours
 
 __all__ = [
@@ -43,6 +43,7 @@ __all__ = [
     "CompletionProposer",
     "FrameEvidence",
     "ObjectEvidence",
+    "Limit",
     "ObservationEnergy",
     "available_depth_priors",
     "available_proposers",
@@ -62,8 +63,8 @@ BUILTIN = ("stage1", "extrude", "symmetry", "primitive", "visual_hull")
 
 
 def propose(evidence: ObjectEvidence, proposers: list[str | CompletionProposer] | None = None, *, k: int = 2,
-            seed: int = 0, options: dict[str, dict[str, Any]] | None = None,
-            max_seen_through: float = 0.05) -> list[tuple[Candidate, ObservationEnergy]]:  # fmt: skip
+            seed: int = 0, options: dict[str, dict[str, Any]] | None = None, max_seen_through: float = 0.05,
+            max_obs_gain: float | None = None) -> list[tuple[Candidate, ObservationEnergy]]:  # fmt: skip
     """Candidates of every proposer (``k`` each, seeded), each with its E_obs, in proposer order.
 
     Args:
@@ -74,6 +75,8 @@ def propose(evidence: ObjectEvidence, proposers: list[str | CompletionProposer] 
         options: Keyword arguments per proposer name (``{"learned": {"weights": "model.pt"}}``).
         max_seen_through: Rejection limit of E_obs; once the first ``stage1`` candidate (the fitted shape,
             never rejected) is scored, relative to its own share (:func:`seen_through_limit`).
+        max_obs_gain: Reject a candidate whose E_obs exceeds the fitted shape's by more than this (None: no
+            such limit; :func:`scored_among`).
     """
     out = []
     limit, fitted = max_seen_through, False
@@ -81,7 +84,7 @@ def propose(evidence: ObjectEvidence, proposers: list[str | CompletionProposer] 
         proposer = make_proposer(entry, **(options or {}).get(entry, {})) if isinstance(entry, str) else entry
         for candidate in proposer.propose(evidence, k, seed):
             energy, limit = scored_among(candidate, evidence, limit, baseline=not fitted,
-                                         max_seen_through=max_seen_through)  # fmt: skip
+                                         max_seen_through=max_seen_through, max_obs_gain=max_obs_gain)  # fmt: skip
             fitted = fitted or candidate.proposer == "stage1"
             out.append((candidate, energy))
     return out

@@ -16,18 +16,20 @@ candidate's by more than ``margin``):
 
 Among an object's candidates the limit is relative (:func:`seen_through_limit`): the fitted shape (``stage1``)
 is never rejected, and its own seen-through share, up to ``max_seen_through`` again, is added to the limit of
-the others (on 2.4 cm cells a fitted table is already about 6% seen through).
+the others (on 2.4 cm cells a fitted table is already about 6% seen through). With ``max_obs_gain``
+(:func:`scored_among`) a candidate whose energy exceeds the fitted shape's by more than that is rejected too.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
 from holousd.priors._api import Candidate, ObjectEvidence
 
-__all__ = ["ObservationEnergy", "observation_energy", "zbuffer"]
+__all__ = ["Limit", "ObservationEnergy", "observation_energy", "zbuffer"]
 
 
 @dataclass(kw_only=True)
@@ -136,16 +138,33 @@ def seen_through_limit(stage1: float, max_seen_through: float = 0.05) -> float:
     return max_seen_through + min(max(stage1, 0.0), max_seen_through)
 
 
-def scored_among(candidate: Candidate, evidence: ObjectEvidence, limit: float, *, baseline: bool,
-                 max_seen_through: float = 0.05) -> tuple[ObservationEnergy, float]:
+class Limit(NamedTuple):
+    """The running rejection limits among an object's candidates (:func:`scored_among`)."""
+
+    seen_through: float
+    """Seen-through share above which a candidate is rejected."""
+    energy: float = float("inf")
+    """E_obs above which a candidate is rejected (the fitted shape's plus ``max_obs_gain``, once it is scored)."""
+
+
+def scored_among(candidate: Candidate, evidence: ObjectEvidence, limit: float | Limit, *, baseline: bool,
+                 max_seen_through: float = 0.05, max_obs_gain: float | None = None,
+                 ) -> tuple[ObservationEnergy, Limit]:  # fmt: skip
     """E_obs of one of an object's candidates under the running rejection ``limit``, and the limit for the
     candidates after it. With ``baseline`` and a ``stage1`` candidate (the fitted shape) the candidate is never
-    rejected and its own seen-through share sets the limit (:func:`seen_through_limit`)."""
+    rejected, its own seen-through share sets the seen-through limit (:func:`seen_through_limit`) and, with
+    ``max_obs_gain``, its E_obs plus that gain the limit on E_obs: a candidate that explains the observations
+    that much worse than the fit does (its silhouette off the masks, its surface off the depth) is no completion
+    of what was seen, however well it stands."""
     from dataclasses import replace
 
-    energy = observation_energy(candidate, evidence, max_seen_through=limit)
+    limit = limit if isinstance(limit, Limit) else Limit(float(limit))
+    energy = observation_energy(candidate, evidence, max_seen_through=limit.seen_through)
     if baseline and candidate.proposer == "stage1":
-        return replace(energy, rejected=False), seen_through_limit(energy.seen_through, max_seen_through)
+        gain = float("inf") if max_obs_gain is None else energy.energy + max_obs_gain
+        return replace(energy, rejected=False), Limit(seen_through_limit(energy.seen_through, max_seen_through), gain)
+    if energy.energy > limit.energy:
+        energy = replace(energy, rejected=True)
     return energy, limit
 
 

@@ -921,11 +921,15 @@ def _worst_overlap(a: _Body, b: _Body, deepest: float) -> tuple[int, int] | None
     """Indices of the pair of parts of ``a`` and ``b`` overlapping most (at most ``deepest``), or None."""
     best, found = 0.0, None
     pa, pb = _world_parts(a), _world_parts(b)
-    for j, p in enumerate(pa):
-        for k, q in enumerate(pb):
-            o = overlap(p, q)
-            if o.volume_m3 > best and o.depth_m <= deepest:
-                best, found = o.volume_m3, (j, k)
+    if not pa or not pb:
+        return None
+    box_a = np.array([(p.min(axis=0), p.max(axis=0)) for p, _ in pa])  # [A, 2, 3]
+    box_b = np.array([(q.min(axis=0), q.max(axis=0)) for q, _ in pb])
+    apart = (box_a[:, None, 0] > box_b[None, :, 1]).any(-1) | (box_b[None, :, 0] > box_a[:, None, 1]).any(-1)
+    for j, k in np.argwhere(~apart):  # row-major: the order of the loop over all pairs (ties go to the first)
+        o = overlap(pa[j], pb[k])
+        if o.volume_m3 > best and o.depth_m <= deepest:
+            best, found = o.volume_m3, (int(j), int(k))
     return found
 
 
