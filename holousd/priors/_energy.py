@@ -45,7 +45,9 @@ class ObservationEnergy:
     seen_through: float
     """Fraction of the candidate's visible silhouette where a camera saw through it, in [0, 1]."""
     rejected: bool
-    """True when ``seen_through`` exceeds the limit: matter where the cameras saw empty space."""
+    """True when ``seen_through`` exceeds the limit (matter where the cameras saw empty space) or, among an
+    object's candidates with ``max_obs_gain`` (:func:`scored_among`), the energy exceeds the fitted shape's by
+    more than that."""
     frames: int
     """Frames the candidate was rendered into."""
 
@@ -155,7 +157,8 @@ def scored_among(candidate: Candidate, evidence: ObjectEvidence, limit: float | 
     rejected, its own seen-through share sets the seen-through limit (:func:`seen_through_limit`) and, with
     ``max_obs_gain``, its E_obs plus that gain the limit on E_obs: a candidate that explains the observations
     that much worse than the fit does (its silhouette off the masks, its surface off the depth) is no completion
-    of what was seen, however well it stands."""
+    of what was seen, however well it stands. The limit returned is a :class:`Limit` (a float given is taken
+    as a seen-through limit alone); pass it back in for the next candidate."""
     from dataclasses import replace
 
     limit = limit if isinstance(limit, Limit) else Limit(float(limit))

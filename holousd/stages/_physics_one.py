@@ -923,14 +923,19 @@ def _worst_overlap(a: _Body, b: _Body, deepest: float) -> tuple[int, int] | None
     pa, pb = _world_parts(a), _world_parts(b)
     if not pa or not pb:
         return None
-    box_a = np.array([(p.min(axis=0), p.max(axis=0)) for p, _ in pa])  # [A, 2, 3]
-    box_b = np.array([(q.min(axis=0), q.max(axis=0)) for q, _ in pb])
+    box_a, box_b = _boxes(pa), _boxes(pb)  # [A, 2, 3], [B, 2, 3]
     apart = (box_a[:, None, 0] > box_b[None, :, 1]).any(-1) | (box_b[None, :, 0] > box_a[:, None, 1]).any(-1)
     for j, k in np.argwhere(~apart):  # row-major: the order of the loop over all pairs (ties go to the first)
         o = overlap(pa[j], pb[k])
         if o.volume_m3 > best and o.depth_m <= deepest:
             best, found = o.volume_m3, (int(j), int(k))
     return found
+
+
+def _boxes(parts: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+    """[N, 2, 3] each part's bounding box (lower, upper corner); an empty part's is inside out (meets nothing)."""
+    empty = np.array([np.full(3, np.inf), np.full(3, -np.inf)])
+    return np.array([(p.min(axis=0), p.max(axis=0)) if len(p) else empty for p, _ in parts], float).reshape(-1, 2, 3)
 
 
 def _clipped_apart(a: _Body, j: int, b: _Body, k: int) -> tuple[_Body, _Body] | None:

@@ -159,7 +159,8 @@ class CandidateScore:
     observation: float
     """E_obs."""
     rejected: bool
-    """E_obs rejected it (matter where a camera saw through)."""
+    """E_obs rejected it (matter where a camera saw through, or E_obs more than ``max_obs_gain`` above the
+    fitted shape's)."""
     stable: float
     """E_stable (0: stands)."""
     touch_cm: float
@@ -413,8 +414,8 @@ def _proposed(specs: list[tuple[str, dict]], evidence, k: int, seed: int, max_se
               ) -> list[tuple[object, float, bool, tuple[float, float]]]:  # fmt: skip
     """Every proposer's candidates for one object with their E_obs and, on the parent's chosen shape, E_stable and
     touch: ``[(Candidate, E_obs, rejected, (E_stable, touch cm))]``, the fitted shape first (it sets the
-    seen-through baseline). A worker's task: it needs the object's evidence alone. ``ground``: an object on another
-    gets E_obs alone (0, 0)."""
+    seen-through and the E_obs baselines: ``stage1`` must be the first proposer). A worker's task: it needs the
+    object's evidence alone. ``ground``: an object on another gets E_obs alone (0, 0)."""
     from holousd.priors import scored_among
 
     parent = evidence.support or BACKGROUND
