@@ -375,6 +375,13 @@ def test_support_is_what_an_object_touches_not_what_its_overhang_is_above() -> N
     holed = {"shelf": (np.asarray(board.vertices), np.asarray(board.faces)), "ball": _ball((0.0, 0.0, 1.236), 0.035),
              "box": _box((0.6, 0.0, 0.0), (0.8, 0.2, 0.2))}  # fmt: skip
     assert infer_relations(holed).support == {"shelf": BACKGROUND, "ball": "shelf", "box": BACKGROUND}
+    # hard/small_beside_large: a cabinet's fitted base, rounded a voxel under the floor, reaches under the 5 cm box
+    # sunk a centimetre into the floor beside it; with the floor's height known, the box stands on the floor
+    # (the set-up then left the cabinet in it and the simulators threw it 4.9 m); control: without it, the cabinet
+    base = _union(_box((0.0, -0.4, -0.02), (0.4, 0.4, 0.9)), _box((-0.05, -0.4, -0.02), (0.0, 0.4, -0.005)))
+    lipped = {"cabinet": base, "box": _box((-0.06, 0.0, -0.013), (-0.01, 0.05, 0.037))}
+    assert infer_relations(lipped, floor=0.0).support == {"cabinet": BACKGROUND, "box": BACKGROUND}
+    assert infer_relations(lipped).support["box"] == "cabinet"
 
 
 # ----------------------------------------------------------------------------------------------- decomposition
@@ -400,6 +407,22 @@ def test_plane_decomposition_follows_slabs_and_posts_and_convexify_makes_it_the_
     under = [p for p, _ in found.parts if p[:, 2].max() > 0.1 + 6e-4]  # half a millimetre off the surface
     assert under and all(p[:, 0].min() >= 0.45 - 1e-6 for p in under)  # only the bump rises above the surface
     assert plane_decomposition((np.zeros((3, 3)), np.array([[0, 1, 2]]))) is None  # not a closed solid
+
+
+def test_a_decomposition_whose_budget_is_spent_still_cuts_what_reaches_far_outside() -> None:
+    """With its parts spent (here on purpose: one), a decomposition goes on, within ``reach_parts``, cutting the
+    pieces whose hulls stand over ``max_reach`` outside the mesh (the phone demo's table kept a hull 19 cm
+    outside it, over a leg and the space beside it); control: without ``max_reach`` it stops at the hull."""
+    from holousd.geometry import plane_decomposition
+
+    table = _union(_box((-0.4, -0.3, 0.7), (0.4, 0.3, 0.74)),
+                   *(_box((x, y, 0.0), (x + 0.05, y + 0.05, 0.7)) for x in (-0.4, 0.35) for y in (-0.3, 0.25)))
+    spent = plane_decomposition(table, tolerance=0.003, max_parts=1)
+    assert len(spent.parts) == 1 and collider_reach(spent.parts, table) > 0.2
+    found = plane_decomposition(table, tolerance=0.003, max_parts=1, max_reach=0.02, reach_parts=12)
+    assert 2 <= len(found.parts) <= 13 and collider_reach(found.parts, table) <= 0.02
+    few = plane_decomposition(table, tolerance=0.003, max_parts=1, max_reach=0.02, reach_parts=1)
+    assert len(few.parts) <= 2  # the extra parts are bounded
 
 
 def test_zero_area_faces_go_and_a_closed_mesh_stays_closed() -> None:

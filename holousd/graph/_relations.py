@@ -131,12 +131,16 @@ def _contact_points(mesh: Mesh, config: RelationConfig) -> np.ndarray:
     return low[evenly_spaced(len(low), config.max_rays)]
 
 
-def infer_relations(meshes: dict[str, Mesh], config: RelationConfig | None = None) -> Relations:
+def infer_relations(meshes: dict[str, Mesh], config: RelationConfig | None = None, *,
+                    floor: float | None = None) -> Relations:  # fmt: skip
     """Infer the support tree and beside pairs of objects from their world-space meshes.
 
     Args:
         meshes: Object name -> ``(points [N, 3], faces [F, 3])`` in world coordinates (background excluded).
         config: Settings.
+        floor: The room's floor height, when known: an object's upward surface within ``contact_band`` of it is
+            the floor's (a fitted cabinet's base, rounded a voxel under the floor, reaches under the small box
+            standing beside it; the box is on the floor, not on the cabinet).
 
     Returns:
         Support parent per object (a tree rooted at 'background') and beside lists.
@@ -149,7 +153,7 @@ def infer_relations(meshes: dict[str, Mesh], config: RelationConfig | None = Non
     bounds = {n: tms[n].bounds for n in names}  # [2, 3]
     intersectors = {n: RayMeshIntersector(tms[n]) for n in names}
     result = Relations()
-    floor = min((float(bounds[n][0][2]) for n in names), default=0.0)  # what stands on the room stands about here
+    lowest = min((float(bounds[n][0][2]) for n in names), default=0.0)  # what stands on the room stands about here
     for name in names:
         pts = np.asarray(meshes[name][0], float)
         low = _contact_points(meshes[name], config)
@@ -175,6 +179,8 @@ def infer_relations(meshes: dict[str, Mesh], config: RelationConfig | None = Non
             # a surface to rest on faces up (a downward ray leaves a solid through the faces under it)
             up = tms[other].face_normals[tri, 2] > 0.0
             ok = up & (drop >= -config.ray_start) & (drop <= config.max_gap)
+            if floor is not None:
+                ok &= locations[:, 2] > floor + config.contact_band
             for r, d in zip(ray_index[ok], np.abs(drop[ok]), strict=True):
                 if d < best[r]:
                     best[r], owner[r] = d, other
@@ -182,8 +188,8 @@ def infer_relations(meshes: dict[str, Mesh], config: RelationConfig | None = Non
         touching = hit & (best <= (best[hit].min() if hit.any() else 0.0) + config.contact_band)
         for o in owner[touching]:
             votes[o] = votes.get(o, 0) + 1
-        if not votes and bottom > floor + config.max_gap:
-            votes = _votes_under_footprint(name, meshes[name], names, intersectors, bounds, tms, config)
+        if not votes and bottom > lowest + config.max_gap:
+            votes = _votes_under_footprint(name, meshes[name], names, intersectors, bounds, tms, config, floor)
         result.votes[name] = votes
         result.support[name] = max(sorted(votes), key=lambda k: votes[k]) if votes else BACKGROUND
     result.beside = {n: [] for n in names}
@@ -211,7 +217,8 @@ def infer_relations(meshes: dict[str, Mesh], config: RelationConfig | None = Non
 
 
 def _votes_under_footprint(name: str, mesh: Mesh, names: list[str], intersectors: dict, bounds: dict,
-                           tms: dict, config: RelationConfig) -> dict[str, int]:  # fmt: skip
+                           tms: dict, config: RelationConfig, floor: float | None = None,
+                           ) -> dict[str, int]:  # fmt: skip
     """Votes for the parent of an object whose contact points lie over nothing within ``max_gap`` (a hole the
     fit left in the board under it: hard/shelf's ball on the top board, its contact rays fell 40 cm to the board
     below and it was put on the room, 1.2 m above the floor): rays down from every point of its lowest
@@ -233,6 +240,8 @@ def _votes_under_footprint(name: str, mesh: Mesh, names: list[str], intersectors
         if len(ray_index) == 0:
             continue
         ok = (tms[other].face_normals[tri, 2] > 0.0) & (locations[:, 2] >= bottom - config.max_gap)
+        if floor is not None:  # the floor's, not the object's (see infer_relations)
+            ok &= locations[:, 2] > floor + config.contact_band
         for r, z in zip(ray_index[ok], locations[ok, 2], strict=True):
             if z > best[r]:
                 best[r], owner[r] = z, other

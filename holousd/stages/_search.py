@@ -307,13 +307,14 @@ def search(scene: SceneGraph, obs, config: SearchConfig | None = None,  # noqa: 
     names = [n for n in scene.objects() if _has_mesh(scene, n)]
     poses = {n: scene.get_pose(n) for n in names}
     fitted = {n: _world(poses[n], scene.get_mesh(n)) for n in names}
-    relations = infer_relations({n: (m.points, m.faces) for n, m in fitted.items()})
+    floor = _floor(scene)
+    relations = infer_relations({n: (m.points, m.faces) for n, m in fitted.items()}, floor=floor)
     scene.push_layer(out_dir / SEARCH_LAYER, provenance=config.provenance, replace=True)
     choices: list[ObjectChoice] = []
     if config.mode == "none":
         scene.save()
         return SearchResult(scene=scene, mode=config.mode, choices=choices, wall_s=time.perf_counter() - start)
-    scorer = _Scorer(config, _floor(scene))
+    scorer = _Scorer(config, floor)
     known = dict(fitted)  # world meshes as fitted, the room's with them: read from the scene once, not per object
     if _has_mesh(scene, BACKGROUND):
         known[BACKGROUND] = _world(scene.get_pose(BACKGROUND), scene.get_mesh(BACKGROUND))
