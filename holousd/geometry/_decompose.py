@@ -111,20 +111,24 @@ def _piece(solid, tolerance: float, keep_out: list | None = None) -> _Piece:  # 
 
 
 class _Outside:
-    """How far a point lies outside a closed mesh, metres (0 inside); the mesh's proximity structure is built on
-    the first query."""
+    """How far a point lies outside a closed mesh, metres (0 inside; containment by :func:`inside`'s ray parity,
+    which draws no random direction); the trimesh is built on the first query."""
 
     def __init__(self, mesh: Mesh) -> None:
         self.mesh = mesh
-        self._query = None
+        self._target = None
 
     def __call__(self, point: np.ndarray) -> float:
         import trimesh
 
-        if self._query is None:
-            self._query = trimesh.proximity.ProximityQuery(
-                trimesh.Trimesh(np.asarray(self.mesh[0], float), np.asarray(self.mesh[1]), process=False))
-        return max(0.0, -float(self._query.signed_distance(np.asarray(point, float)[None])[0]))
+        from holousd.geometry._contact import inside
+
+        if self._target is None:
+            self._target = trimesh.Trimesh(np.asarray(self.mesh[0], float), np.asarray(self.mesh[1]), process=False)
+        at = np.asarray(point, float).reshape(1, 3)
+        if inside(self._target, at)[0]:
+            return 0.0
+        return float(trimesh.proximity.closest_point(self._target, at)[1][0])
 
 
 def _components(solid, min_volume: float) -> list:  # noqa: ANN001
