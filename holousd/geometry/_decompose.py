@@ -55,6 +55,7 @@ class _Piece:
     concavity: float
     deepest: np.ndarray
     intrusion: float = 0.0  # volume of the hull inside the keep-out solids, m^3
+    outside: float | None = None  # how far ``deepest`` lies outside the whole mesh, m (asked for once, if at all)
 
 
 def _intrusion(piece, hull, keep_out: list) -> float:  # noqa: ANN001
@@ -129,6 +130,13 @@ class _Outside:
         if inside(self._target, at)[0]:
             return 0.0
         return float(trimesh.proximity.closest_point(self._target, at)[1][0])
+
+
+def _outside(piece: _Piece, outside: _Outside) -> float:
+    """How far the piece's hull point farthest from it lies outside the whole mesh, asked once per piece."""
+    if piece.outside is None:
+        piece.outside = outside(piece.deepest)
+    return piece.outside
 
 
 def _components(solid, min_volume: float) -> list:  # noqa: ANN001
@@ -282,11 +290,11 @@ def plane_decomposition(mesh: Mesh, *, tolerance: float = 0.003, max_parts: int 
                 break
             # the budget is spent: cut on only a piece whose hull stands over max_reach outside the whole mesh
             # (not merely off its own surface, towards the piece beside it)
-            reach = [i for i in sorted(range(len(pieces)), key=lambda i: -pieces[i].concavity)
-                     if pieces[i].concavity > max_reach and outside(pieces[i].deepest) > max_reach][:1]  # fmt: skip
-            if not reach:
+            found = next((i for i in sorted(range(len(pieces)), key=lambda i: -pieces[i].concavity)
+                          if pieces[i].concavity > max_reach and _outside(pieces[i], outside) > max_reach), None)
+            if found is None:
                 break
-            worst, reaching = reach[0], True
+            worst, reaching = found, True
         piece = pieces.pop(worst)
         split = _best_split(piece, offsets, min_volume)
         added = len(split) - 1 if split is not None else 0
