@@ -412,7 +412,8 @@ def test_plane_decomposition_follows_slabs_and_posts_and_convexify_makes_it_the_
 def test_a_decomposition_whose_budget_is_spent_still_cuts_what_reaches_far_outside() -> None:
     """With its parts spent (here on purpose: one), a decomposition goes on, within ``reach_parts``, cutting the
     pieces whose hulls stand over ``max_reach`` outside the mesh (the phone demo's table kept a hull 19 cm
-    outside it, over a leg and the space beside it); control: without ``max_reach`` it stops at the hull."""
+    outside it, over a leg and the space beside it), one the budget left waiting too; control: without
+    ``max_reach`` it stops at the hull."""
     from holousd.geometry import plane_decomposition
 
     table = _union(_box((-0.4, -0.3, 0.7), (0.4, 0.3, 0.74)),
@@ -423,6 +424,13 @@ def test_a_decomposition_whose_budget_is_spent_still_cuts_what_reaches_far_outsi
     assert 2 <= len(found.parts) <= 13 and collider_reach(found.parts, table) <= 0.02
     few = plane_decomposition(table, tolerance=0.003, max_parts=1, max_reach=0.02, reach_parts=1)
     assert len(few.parts) <= 2  # the extra parts are bounded
+    # a piece whose cut needs more parts than are left waits, and the reach bound cuts it (on a phone capture's
+    # table the budget left the whole lumpy top uncut, its hull 17 cm out over a notch): the cut under the top
+    # makes five pieces, two are allowed
+    waited = plane_decomposition(table, tolerance=0.003, max_parts=2)
+    assert len(waited.parts) == 1 and collider_reach(waited.parts, table) > 0.2
+    cut = plane_decomposition(table, tolerance=0.003, max_parts=2, max_reach=0.02, reach_parts=12)
+    assert len(cut.parts) >= 5 and collider_reach(cut.parts, table) <= 0.02
 
 
 def test_zero_area_faces_go_and_a_closed_mesh_stays_closed() -> None:

@@ -45,7 +45,7 @@ class Decomposition:
     keep-outs)."""
 
 
-@dataclass
+@dataclass(eq=False)  # a piece is itself (lists find it by identity)
 class _Piece:
     solid: object  # manifold3d.Manifold
     volume: float
@@ -55,7 +55,9 @@ class _Piece:
     concavity: float
     deepest: np.ndarray
     intrusion: float = 0.0  # volume of the hull inside the keep-out solids, m^3
-    outside: float | None = None  # how far ``deepest`` lies outside the whole mesh, m (asked for once, if at all)
+    probes: np.ndarray | None = None  # samples of the hull's surface [n, 3]
+    off: np.ndarray | None = None  # each probe's distance to the piece's surface [n], m
+    outside: float | None = None  # how far the hull stands outside the whole mesh, m (asked for once, if at all)
 
 
 def _intrusion(piece, hull, keep_out: list) -> float:  # noqa: ANN001
@@ -107,35 +109,41 @@ def _piece(solid, tolerance: float, keep_out: list | None = None) -> _Piece:  # 
         distance[far] = exact
     k = int(np.argmax(distance))
     return _Piece(solid=solid, volume=float(solid.volume()), hull=hull, hull_volume=float(hull.volume()),
-                  vertices=points, concavity=float(distance[k]), deepest=probes[k],
+                  vertices=points, concavity=float(distance[k]), deepest=probes[k], probes=probes, off=distance,
                   intrusion=_intrusion(solid, hull, keep_out) if keep_out else 0.0)  # fmt: skip
 
 
 class _Outside:
-    """How far a point lies outside a closed mesh, metres (0 inside; containment by :func:`inside`'s ray parity,
-    which draws no random direction); the trimesh is built on the first query."""
+    """How far the farthest of some points lies outside a closed mesh, metres (0 when all are inside; containment
+    by :func:`inside`'s ray parity, which draws no random direction); the trimesh is built on the first query."""
 
     def __init__(self, mesh: Mesh) -> None:
         self.mesh = mesh
         self._target = None
 
-    def __call__(self, point: np.ndarray) -> float:
+    def __call__(self, points: np.ndarray) -> float:
         import trimesh
 
         from holousd.geometry._contact import inside
 
+        at = np.asarray(points, float).reshape(-1, 3)
+        if not len(at):
+            return 0.0
         if self._target is None:
             self._target = trimesh.Trimesh(np.asarray(self.mesh[0], float), np.asarray(self.mesh[1]), process=False)
-        at = np.asarray(point, float).reshape(1, 3)
-        if inside(self._target, at)[0]:
+        at = at[~inside(self._target, at)]
+        if not len(at):
             return 0.0
-        return float(trimesh.proximity.closest_point(self._target, at)[1][0])
+        return float(trimesh.proximity.closest_point(self._target, at)[1].max())
 
 
-def _outside(piece: _Piece, outside: _Outside) -> float:
-    """How far the piece's hull point farthest from it lies outside the whole mesh, asked once per piece."""
+def _outside(piece: _Piece, outside: _Outside, reach: float) -> float:
+    """How far the piece's hull stands outside the whole mesh, asked once per piece: over every sample of the
+    hull's surface further than ``reach`` from the piece (no nearer one can stand further than ``reach``
+    outside the mesh, which holds the piece). The one farthest from the piece alone may lie in the piece beside
+    it while another, nearer, stands far out (a phone capture's table kept a hull 17 cm out so)."""
     if piece.outside is None:
-        piece.outside = outside(piece.deepest)
+        piece.outside = outside(piece.probes[piece.off > reach])
     return piece.outside
 
 
@@ -272,7 +280,8 @@ def plane_decomposition(mesh: Mesh, *, tolerance: float = 0.003, max_parts: int 
             box = np.asarray(found.bounding_box(), float).reshape(2, 3)
             blocked.append((found, box[0], box[1]))
     pieces = [_piece(p, tolerance, blocked) for p in solids]
-    frozen: list[_Piece] = []  # pieces no plane cut improves (or the budget does not allow cutting)
+    frozen: list[_Piece] = []  # pieces no plane cut improves
+    waiting: list[_Piece] = []  # pieces whose cut the budget did not allow (the reach bound may still cut them)
     # parts added by the given `cuts` and by cuts made to keep out of `keep_out` do not count against `max_parts`
     extra = len(solids) - whole
     keep_out_parts += extra
@@ -281,21 +290,23 @@ def plane_decomposition(mesh: Mesh, *, tolerance: float = 0.003, max_parts: int 
     while True:
         worst = max(range(len(pieces)), key=lambda i: (pieces[i].intrusion > max_intrusion, pieces[i].concavity),
                     default=None)  # fmt: skip
-        if worst is None or (pieces[worst].concavity <= tolerance and pieces[worst].intrusion <= max_intrusion):
-            break
-        intruding = pieces[worst].intrusion > max_intrusion
+        done = worst is None or (pieces[worst].concavity <= tolerance and pieces[worst].intrusion <= max_intrusion)
+        intruding = not done and pieces[worst].intrusion > max_intrusion
+        count = len(pieces) + len(frozen) + len(waiting)
         reaching = False
-        if not intruding and len(pieces) + len(frozen) >= max_parts + extra + far:
+        if done or (not intruding and count >= max_parts + extra + far):
             if max_reach is None or far >= reach_parts:
                 break
             # the budget is spent: cut on only a piece whose hull stands over max_reach outside the whole mesh
-            # (not merely off its own surface, towards the piece beside it)
-            found = next((i for i in sorted(range(len(pieces)), key=lambda i: -pieces[i].concavity)
-                          if pieces[i].concavity > max_reach and _outside(pieces[i], outside) > max_reach), None)
+            # (not merely off its own surface, towards the piece beside it), one the budget left waiting too
+            found = next((p for p in sorted(pieces + waiting, key=lambda p: -p.concavity)
+                          if p.concavity > max_reach and _outside(p, outside, max_reach) > max_reach), None)
             if found is None:
                 break
-            worst, reaching = found, True
-        piece = pieces.pop(worst)
+            (pieces if any(p is found for p in pieces) else waiting).remove(found)
+            piece, reaching = found, True
+        else:
+            piece = pieces.pop(worst)
         split = _best_split(piece, offsets, min_volume)
         added = len(split) - 1 if split is not None else 0
         if reaching:
@@ -305,11 +316,14 @@ def plane_decomposition(mesh: Mesh, *, tolerance: float = 0.003, max_parts: int 
             far += added
         elif intruding and split is not None and extra + added <= keep_out_parts:
             extra += added
-        elif split is None or len(pieces) + len(frozen) + len(split) > max_parts + extra + far:
-            frozen.append(piece)  # an intruding piece beyond the extra parts may still be cut for its concavity
+        elif split is None:
+            frozen.append(piece)
+            continue
+        elif count + added > max_parts + extra + far:
+            waiting.append(piece)  # an intruding piece beyond the extra parts may still be cut for its concavity
             continue
         pieces.extend(_piece(p, tolerance, blocked) for p in split)
-    pieces += frozen
+    pieces += frozen + waiting
     total = float(solid.volume())
     union = pieces[0].hull
     for p in pieces[1:]:
