@@ -198,9 +198,11 @@ def test_a_supports_collider_keeps_out_of_what_stands_on_it(tmp_path: Path) -> N
         parts = [(pose.apply(p.points), p.faces) for p in scene.get_collider("shelf").parts]
         return sum(overlap(p, _world_mesh(scene, "box")).volume_m3 for p in parts)
 
-    # one part for the shelf's concavity: its hull fills the compartment and the box inside it
-    assert inside(PhysicsSetupConfig(max_parts=1, support_keep_out_parts=0), "bare") > 5e-3
-    assert inside(PhysicsSetupConfig(max_parts=1, support_keep_out_parts=8), "kept") <= 1e-7
+    # one part for the shelf's concavity (and no reach bound, which cuts a hull so far outside the mesh): its hull
+    # fills the compartment and the box inside it
+    assert inside(PhysicsSetupConfig(max_parts=1, support_keep_out_parts=0, max_reach=None), "bare") > 5e-3
+    assert inside(PhysicsSetupConfig(max_parts=1, support_keep_out_parts=8, max_reach=None), "kept") <= 1e-7
+    assert inside(PhysicsSetupConfig(max_parts=1, support_keep_out_parts=0), "reach") <= 1e-7
 
 
 def test_a_lumpy_convex_object_becomes_its_hull(tmp_path: Path) -> None:
@@ -344,7 +346,7 @@ def test_overlap_depth_and_cuts_of_turned_and_split_objects() -> None:
 
 
 def test_support_is_what_an_object_touches_not_what_its_overhang_is_above() -> None:
-    from holousd.graph import infer_relations
+    from holousd.graph import RelationConfig, infer_relations
 
     for case, parents in _STACK_PARENTS.items():
         assert infer_relations(_STACKS[case]).support == parents, case
@@ -382,6 +384,51 @@ def test_support_is_what_an_object_touches_not_what_its_overhang_is_above() -> N
     lipped = {"cabinet": base, "box": _box((-0.06, 0.0, -0.013), (-0.01, 0.05, 0.037))}
     assert infer_relations(lipped, floor=0.0).support == {"cabinet": BACKGROUND, "box": BACKGROUND}
     assert infer_relations(lipped).support["box"] == "cabinet"
+    # a box whose hidden bottom was fitted down through a table's top and out under it, between the legs (hard/
+    # touching_siblings on a phone capture): no contact ray meets the table, yet the table's top runs through it
+    legged = _union(_box((-0.4, -0.3, 0.68), (0.4, 0.3, 0.76)),
+                    *(_box((x, y, 0.0), (x + 0.05, y + 0.05, 0.68)) for x in (-0.4, 0.35) for y in (-0.3, 0.25)))
+    for case, box in _SUNK.items():
+        assert infer_relations({"table": legged, "box": box}).support == {"table": BACKGROUND, "box": "table"}, case
+    # control: a bin (a fitted mesh: vertices all over it) whose end lies 1 cm into a cabinet's top, the rest
+    # beside it, is not on the cabinet
+    rim = trimesh.Trimesh(*_box((0.39, 0.1, 0.41), (0.85, 0.16, 0.457))).subdivide_to_size(0.02)
+    lidded = {"cabinet": _box((0.0, 0.0, 0.0), (0.4, 0.4, 0.445)), "bin": (np.asarray(rim.vertices), rim.faces)}
+    assert infer_relations(lidded).support["bin"] == BACKGROUND
+    # a bin seen only from above, its fitted rim 41 cm over the floor: one end grazes a ledge of the cabinet beside
+    # it (hard/top_only); that is no support (the search carries the bin down to the floor)
+    ledged = _union(_box((0.0, 0.0, 0.0), (0.4, 0.4, 0.8)), _box((0.39, 0.0, 0.37), (0.42, 0.4, 0.39)))
+    rim = _union(_box((0.43, 0.1, 0.41), (0.85, 0.16, 0.457)), _box((0.41, 0.1, 0.43), (0.44, 0.16, 0.457)))
+    assert infer_relations({"cabinet": ledged, "bin": rim}).support["bin"] == BACKGROUND
+    grazed = infer_relations({"cabinet": ledged, "bin": rim}, RelationConfig(footprint_share=0.0))
+    assert grazed.support["bin"] == "cabinet"  # control: counting every ray, the graze made it the parent
+    # control: a box hanging under a board's end, through nothing, is on the room
+    under = {"board": _box((-0.4, -0.3, 0.68), (0.4, 0.3, 0.76)), "box": _box((0.45, -0.1, 0.3), (0.6, 0.1, 0.5))}
+    assert infer_relations(under).support["box"] == BACKGROUND
+
+
+_SUNK = {"keel": _union(_box((-0.1, -0.1, 0.761), (0.1, 0.1, 0.869)), _box((-0.03, -0.03, 0.649), (0.03, 0.03, 0.77))),
+         "through": _box((-0.1, -0.1, 0.649), (0.1, 0.1, 0.869)),
+         "into": _box((-0.1, -0.1, 0.70), (0.1, 0.1, 0.869))}
+"""A box on a table (top 0.68-0.76 m) whose hidden underside the fit ran down into or through the top: a keel
+through it, the whole bottom through it, the bottom 6 cm into it (its lowest points' rays meet the top's
+underside)."""
+
+
+@pytest.mark.parametrize("case", sorted(_SUNK))
+def test_a_child_fitted_down_through_its_supports_top_is_cut_at_it(case: str, tmp_path: Path) -> None:
+    """No ray from the child's lowest points (under the top, between the legs) meets the table: its base was
+    never cut and it stood 6 cm deep in the table's mesh (a phone capture's box, hard/touching_siblings). The
+    table's top inside it is its support's surface: its base is cut there, the part no camera saw goes."""
+    legged = _union(_box((-0.4, -0.3, 0.68), (0.4, 0.3, 0.76)),
+                    *(_box((x, y, -0.005), (x + 0.05, y + 0.05, 0.68)) for x in (-0.4, 0.35) for y in (-0.3, 0.25)))
+    scene = _scene(tmp_path, {"table": legged, "box": _SUNK[case]})
+    rec = _records(setup_physics(scene, PhysicsSetupConfig()))
+    assert rec["box"].parent == "table" and "cut:base" in rec["box"].edits, rec["box"]
+    box = _world(scene, "box")
+    assert box[:, 2].min() == pytest.approx(0.761, abs=1e-4) and box[:, 2].max() == pytest.approx(0.869, abs=1e-4)
+    assert rec["box"].penetration_m < 1e-4 and rec["table"].penetration_m < 1e-4
+    assert all(xpbd and mujoco for xpbd, mujoco in _verdicts(scene).values())
 
 
 # ----------------------------------------------------------------------------------------------- decomposition

@@ -240,8 +240,9 @@ def plane_decomposition(mesh: Mesh, *, tolerance: float = 0.003, max_parts: int 
             count against ``max_parts`` (once they are spent, such cuts take from ``max_parts``). On the demo's
             table, cut flat under three objects, the sheets above the cuts spent the 32 parts when they counted,
             and left a hull of the top and its legs reaching 48 cm outside the mesh.
-        max_reach: Once ``max_parts`` (and the keep-out parts) are spent, go on cutting the piece whose hull's
-            point farthest from it lies over this far outside the whole mesh, metres (None: stop), with at most
+        max_reach: Once ``max_parts`` (and the keep-out parts) are spent, or every piece within ``tolerance``
+            but those whose cut the budget did not allow, go on cutting the piece (one of those included) whose
+            hull has a point over this far outside the whole mesh, metres (None: stop), with at most
             ``reach_parts`` more pieces: on a phone capture's lumpy table, cut under three objects, the budgets
             went to bumps and slivers and left one hull 19 cm outside the mesh, over a leg and beside it.
         reach_parts: Most pieces cut for ``max_reach``.
@@ -280,7 +281,7 @@ def plane_decomposition(mesh: Mesh, *, tolerance: float = 0.003, max_parts: int 
             box = np.asarray(found.bounding_box(), float).reshape(2, 3)
             blocked.append((found, box[0], box[1]))
     pieces = [_piece(p, tolerance, blocked) for p in solids]
-    frozen: list[_Piece] = []  # pieces no plane cut improves
+    frozen: list[_Piece] = []  # pieces no plane cut improves (or whose cut the reach parts left do not allow)
     waiting: list[_Piece] = []  # pieces whose cut the budget did not allow (the reach bound may still cut them)
     # parts added by the given `cuts` and by cuts made to keep out of `keep_out` do not count against `max_parts`
     extra = len(solids) - whole
@@ -320,7 +321,7 @@ def plane_decomposition(mesh: Mesh, *, tolerance: float = 0.003, max_parts: int 
             frozen.append(piece)
             continue
         elif count + added > max_parts + extra + far:
-            waiting.append(piece)  # an intruding piece beyond the extra parts may still be cut for its concavity
+            waiting.append(piece)  # (an intruding piece beyond the keep-out parts too) the reach bound may cut it
             continue
         pieces.extend(_piece(p, tolerance, blocked) for p in split)
     pieces += frozen + waiting

@@ -17,29 +17,30 @@ objects:
    to a lower part of it or miss) the surface is carried over the opening within the rectangle of the
    support's own top at that height (a fitted top is a bumpy dome of facets, and no camera sees it under what
    rests on it; a wall beside stays);
-   the support's shape is then settled (pass 5) with its decomposition cut along those flat surfaces. Then the
-   child's unseen underside is cut flat, ``clearance`` above the higher of the support's mesh and collider under
-   it (and under its whole footprint, where its lowest points hang over a lower edge), deep enough for a base
-   spanning half its width with the centre of mass over it (``base_depth``, ``base_margin``), the object moved
-   down when it floats above, by at most ``max_shift`` from its fitted pose counting its parent's moves (when
-   that brings it onto its support, its base is cut less deep; an object that cannot reach its support is left
-   where it was seen, and the refused move recorded). Whatever of the support's collider still lies inside the
-   child is cut away from the child's mesh and SDF. Children follow their parent's moves.
+   the support's shape is then settled (pass 5) with its decomposition cut along those flat surfaces. Then the child's
+   unseen underside is cut flat, ``clearance`` above the higher of the support's mesh and collider under it (and under
+   its whole footprint, where its lowest points hang over a lower edge; at the support's top where that runs through the
+   child higher than what its lowest points found: a keel fitted down through the top), deep enough for a base spanning
+   half its width with the centre of mass over it (``base_depth``, ``base_margin``), the object moved down when it
+   floats above, by at most ``max_shift`` from its fitted pose counting its parent's moves (when that brings it onto its
+   support, its base is cut less deep; an object that cannot reach its support is left where it was seen, and the
+   refused move recorded). Whatever of the support's collider still lies inside the child is cut away from the child's
+   mesh and SDF. Children follow their parent's moves.
 4. ``separate``: neighbours whose meshes still overlap are cut apart at the middle of the overlap, across its
    thinnest axis, within the overlap's bounds (1 cm wider), as two real objects meet at one face.
 5. ``shape``: the convex hull of the mesh is the collider when it reaches at most ``hull_tolerance`` outside
    it (at most ``convexify``: the mesh and SDF then become the hull, a lumpy book or ball fitted on coarse
    cells) and enters none of the objects around it; else a decomposition of that mesh
-   (:func:`holousd.geometry.plane_decomposition`: plane cuts until every piece lies within ``hull_tolerance`` of
-   its hull and no piece's hull enters the objects around it (their colliders once shaped, objects in name
-   order), at most ``max_parts``; then, with at most ``reach_parts`` more, until no piece's hull stands over
-   ``max_reach`` outside the mesh). When the decomposition reaches at most ``convexify`` outside the mesh and its
-   union enters nothing around it, the mesh and SDF become the union of its parts (the rendered surface fills
-   its concavities by at most that much) and the collider is exactly the rendered solid; else the reach is what
-   it is, and is recorded, and what of the mesh no part covers (slivers the cuts dropped) is cut from the mesh
-   and SDF, so that a simulator meets all of the rendered solid. A support is shaped before its children are set
-   on it, keeping out of them (where the fit left them) and of what stands around it, with
-   ``support_keep_out_parts`` more parts for that (``keep_out_parts`` for the others).
+   (:func:`holousd.geometry.plane_decomposition`: plane cuts until every piece lies within ``hull_tolerance`` of its
+   hull and no piece's hull enters the objects around it (their colliders once shaped, objects in name order), at most
+   ``max_parts``; then, with at most ``reach_parts`` more, until no piece's hull, one that the budget left uncut
+   included, stands over ``max_reach`` outside the mesh). When the decomposition reaches at most ``convexify`` outside
+   the mesh and its union enters nothing around it, the mesh and SDF become the union of its parts (the rendered surface
+   fills its concavities by at most that much) and the collider is exactly the rendered solid; else the reach is what it
+   is, and is recorded, and what of the mesh no part covers (slivers the cuts dropped) is cut from the mesh and SDF, so
+   that a simulator meets all of the rendered solid. A support is shaped before its children are set on it, keeping out
+   of them (where the fit left them) and of what stands around it, with ``support_keep_out_parts`` more parts for that
+   (``keep_out_parts`` for the others).
 6. ``unclasp``: parts of two colliders that still overlap (hulls reaching past their meshes into a neighbour, at
    most ``hull_tolerance`` deep) are clipped apart by a plane of one's faces, and what of the clipped body's
    mesh lay in the piece cut off goes with it (``clip:collider:<other>``).
@@ -158,11 +159,12 @@ class PhysicsSetupConfig:
     before it (neighbours, in name order). Without them, hard/touching_siblings' box spent its 32 parts on its
     own bumps and kept a hull 1.1 mm into the book beside it: Newton's XPBD resolves an overlap at the first
     step as a velocity, and threw the book 2 cm (MuJoCo's soft contact did not)."""
-    max_reach: float = 0.02
+    max_reach: float | None = 0.02
     """When the parts above are spent, a plane decomposition goes on cutting a piece whose hull stands further than
     this outside the mesh, metres, with at most ``reach_parts`` more parts (on a phone capture's lumpy fits the
     budgets went to the bumps and the cuts under what stands on a top: the phone demo's table kept a part 19 cm
-    outside its mesh, over a leg and the space beside it, and its shelf one filling a compartment, 17 cm)."""
+    outside its mesh, over a leg and the space beside it, and its shelf one filling a compartment, 17 cm); a
+    piece whose cut needed more parts than were left is cut so too. None: no such bound."""
     reach_parts: int = 64
     """Most parts cut for ``max_reach``."""
     decomposition: str = "planes"
@@ -407,6 +409,10 @@ def _rest(bodies: dict[str, _Body], relations: Relations, room: tuple[np.ndarray
             continue
         heights = [_support_height(body, surface, band), *(_support_height(body, p, band) for p in support_parts)]
         heights = [h for h in heights if h is not None]
+        if parent != BACKGROUND:  # a top that runs through it, above what its lowest points found (a keel)
+            sunk = _sunk_height(body, surface, band)
+            if sunk is not None and sunk > max(heights, default=-np.inf) + band:
+                heights.append(sunk)
         if not heights:
             continue
         height = max(heights)  # on the support's mesh, and on its collider where that stands higher
@@ -600,28 +606,62 @@ def _top_under(child: _Body, support: tuple[np.ndarray, np.ndarray], start: floa
     height ``start``; -inf when none is hit. What of the support lies further below the child's underside, under a
     bowl's rim that curves up from its base, holds nothing up (demo's bowl: a lump of the shelf's fitted back 3 cm
     up under its rim set the flat top, and then the bowl, on a ledge 1.6 cm above the board; it tipped)."""
-    from scipy.spatial import ConvexHull, QhullError
-
     c = child.world()[0]
-    lo, hi = c[:, :2].min(axis=0), c[:, :2].max(axis=0)
-    xs, ys = np.meshgrid(np.linspace(lo[0], hi[0], 11)[1:-1], np.linspace(lo[1], hi[1], 11)[1:-1])
-    grid = np.column_stack([xs.ravel(), ys.ravel()])
-    try:  # inside the outline (not a round base's corners): its convex hull's edge lines, n . x + d <= 0 inside
-        edges = ConvexHull(c[:, :2]).equations  # (a Delaunay point location took seconds on a cut mesh's points)
-    except QhullError:
-        return -np.inf
-    grid = grid[np.all(grid @ edges[:, :2].T + edges[:, 2] <= 1e-12, axis=1)]
+    grid = _outline_grid(c)
     if len(grid) == 0:
         return -np.inf
     hits, rays = _first_hits_down(support, np.column_stack([grid, np.full(len(grid), start)]))
     if len(hits) == 0:
         return -np.inf
-    below = np.column_stack([grid, np.full(len(grid), c[:, 2].min() - 1.0)])
-    under, up_rays = _first_hits_down((c, child.mesh.faces), below, up=True)
-    underside = np.full(len(grid), np.inf)  # no underside hit: nothing of the child above that point
-    underside[up_rays] = under[:, 2]
+    underside = _underside(child, grid)
     near = hits[:, 2] >= underside[rays] - gap
     return float(hits[near, 2].max()) if near.any() else -np.inf
+
+
+def _outline_grid(points: np.ndarray) -> np.ndarray:
+    """[G, 2] a 9 x 9 grid over the points' footprint, those inside its outline (not a round base's corners)."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    lo, hi = points[:, :2].min(axis=0), points[:, :2].max(axis=0)
+    xs, ys = np.meshgrid(np.linspace(lo[0], hi[0], 11)[1:-1], np.linspace(lo[1], hi[1], 11)[1:-1])
+    grid = np.column_stack([xs.ravel(), ys.ravel()])
+    try:  # its convex hull's edge lines, n . x + d <= 0 inside
+        edges = ConvexHull(points[:, :2]).equations  # (a Delaunay point location took seconds on a cut mesh's points)
+    except QhullError:
+        return np.zeros((0, 2))
+    return grid[np.all(grid @ edges[:, :2].T + edges[:, 2] <= 1e-12, axis=1)]
+
+
+def _underside(child: _Body, grid: np.ndarray) -> np.ndarray:
+    """[G] height of the child's underside over each grid point (inf where nothing of it is above)."""
+    c = child.world()[0]
+    below = np.column_stack([grid, np.full(len(grid), c[:, 2].min() - 1.0)])
+    under, up_rays = _first_hits_down((c, child.mesh.faces), below, up=True)
+    underside = np.full(len(grid), np.inf)
+    underside[up_rays] = under[:, 2]
+    return underside
+
+
+def _sunk_height(child: _Body, support: tuple[np.ndarray, np.ndarray], sink: float) -> float | None:
+    """Height of the support's top where the child's mesh runs down through it: the median of the support's
+    surface hit by rays cast down from the child's top over its outline, where that lies inside the child (over
+    ``sink`` above its underside there, below its top by more than a quarter of its height); None when fewer
+    than two rays find it so. A phone capture's box on a table had a keel fitted 11 cm down through the top, out
+    under it between the legs: no ray from its lowest points found the table, its base was never cut, and it
+    stood 6 cm deep in the table's mesh (a bottom a few centimetres into the top has its lowest points' rays meet
+    the top's underside instead)."""
+    c = child.world()[0]
+    bottom, top = float(c[:, 2].min()), float(c[:, 2].max())
+    grid = _outline_grid(c)
+    if len(grid) == 0:
+        return None
+    hits, rays = _first_hits_down(support, np.column_stack([grid, np.full(len(grid), top - 1e-4)]))
+    if len(hits) == 0:
+        return None
+    underside = _underside(child, grid)[rays]
+    ceiling = top - max(sink, 0.25 * (top - bottom))
+    sunk = (hits[:, 2] > underside + sink) & (hits[:, 2] <= ceiling)
+    return float(np.median(hits[sunk, 2])) if sunk.sum() >= 2 else None
 
 
 def _filled_up_to(body: _Body, lo: np.ndarray, hi: np.ndarray, depth: float, edit: str) -> _Body:
