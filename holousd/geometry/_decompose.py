@@ -304,7 +304,7 @@ def plane_decomposition(mesh: Mesh, *, tolerance: float = 0.003, max_parts: int 
                           if p.concavity > max_reach and _outside(p, outside, max_reach) > max_reach), None)
             if found is None:
                 break
-            (pieces if any(p is found for p in pieces) else waiting).remove(found)
+            (pieces if found in pieces else waiting).remove(found)  # by identity (eq=False)
             piece, reaching = found, True
         else:
             piece = pieces.pop(worst)
