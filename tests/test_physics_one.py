@@ -431,6 +431,34 @@ def test_a_child_fitted_down_through_its_supports_top_is_cut_at_it(case: str, tm
     assert all(xpbd and mujoco for xpbd, mujoco in _verdicts(scene).values())
 
 
+def test_a_plateau_fitted_under_a_sunk_child_goes_with_the_child() -> None:
+    """A phone capture's table was fitted with a 2.3 cm plateau of its top under a book whose hidden keel ran
+    down into the top; the plateau stood above the top's flattening, and the book was cut on it, keeping a sliver
+    of itself. What of the support stands inside the child's outline, from the flat surface up to where it is
+    looked for, is cut: the child rests on the top the cameras saw around it. Control: a child resting on the
+    plateau (not sunk) keeps it."""
+    from holousd.stages._physics_one import _Body, _flatten_top
+
+    top = _union(_box((-0.4, -0.3, 0.68), (0.4, 0.3, 0.76)), _box((0.0, -0.08, 0.76), (0.15, 0.08, 0.785)))
+    keeled = _union(_box((-0.1, -0.1, 0.761), (0.1, 0.1, 0.869)), _box((-0.07, -0.03, 0.735), (-0.02, 0.03, 0.77)))
+    resting = _box((-0.1, -0.1, 0.786), (0.1, 0.1, 0.869))
+
+    def body(name: str, mesh: tuple[np.ndarray, np.ndarray]) -> _Body:
+        points, faces = mesh
+        return _Body(name=name, mesh=MeshData(points=points, faces=faces), sdf=None, pose=Pose(), fit_pose=Pose())
+
+    def highest_under(table: _Body) -> float:  # the support's top under the child's footprint
+        points = table.world()[0]
+        inside = np.all(np.abs(points[:, :2]) < 0.09, axis=1)
+        return float(points[inside, 2].max())
+
+    config = PhysicsSetupConfig()
+    cut = _flatten_top(body("table", top), [body("book", keeled)], config)
+    assert highest_under(cut) < 0.7605, cut.edits
+    kept = _flatten_top(body("table", top), [body("book", resting)], config)
+    assert highest_under(kept) > 0.78  # (flattened by what the child can follow down: max_shift / 2)
+
+
 # ----------------------------------------------------------------------------------------------- decomposition
 def test_plane_decomposition_follows_slabs_and_posts_and_convexify_makes_it_the_mesh() -> None:
     from holousd.geometry import convexify, plane_decomposition

@@ -577,12 +577,17 @@ def _flatten_top(parent: _Body, children: list[_Body], config: PhysicsSetupConfi
         cut = body.minus_convex([convex_hull(_box(lo, hi))], f"cut:top:{child.name}")
         # under the child's outline, up to where the flat top is looked for: hidden under the child (demo's bowl
         # had a lump of the shelf's fitted back 3 cm up under its rim; it rested against it and tipped)
-        try:  # (a child sunk 3 cm into its support has nothing hidden under it above that)
-            outline = c[:, :2][ConvexHull(c[:, :2]).vertices] if start - plane > 1e-3 else None
+        # a child fitted down through the top (a keel) is cut at the flat surface: what of the support stands
+        # over that inside its outline, up to as high (at most its top), is the child's space too (a phone
+        # capture's table was fitted with a 2 cm plateau under a book whose keel ran through the top; the book
+        # was then cut on the plateau, 2 cm up, and kept a 1 cm sliver of itself)
+        under = max(start, min(plane + 2 * config.top_depth, float(c[:, 2].max())))
+        try:  # (a child sunk 3 cm into its support and thinner than that has nothing hidden under it)
+            outline = c[:, :2][ConvexHull(c[:, :2]).vertices] if under - plane > 1e-3 else None
         except (QhullError, ValueError):  # a degenerate child: no outline to cut under
             outline = None
         if outline is not None:
-            column = np.concatenate([np.column_stack([outline, np.full(len(outline), z)]) for z in (plane, start)])
+            column = np.concatenate([np.column_stack([outline, np.full(len(outline), z)]) for z in (plane, under)])
             cut = cut.minus_convex([convex_hull(column)], f"cut:under:{child.name}")
         cut = _filled_up_to(cut, lo, hi, config.top_depth, f"fill:top:{child.name}")
         if cut is not body:  # flat at `plane` there now: the collider's decomposition cuts along it
