@@ -75,6 +75,20 @@ def test_contact_helpers_on_boxes() -> None:
     assert sorted(props.diagonal_inertia) == pytest.approx(expected)
 
 
+def test_a_mesh_in_pieces_is_cut_as_long_as_the_cut_adds_none() -> None:
+    """The phone demo's plate came out of the fit in three pieces (407, 37 and 11 cm^3): every cut was refused as
+    "falls apart", its base was never cut and it stayed 1.3 cm deep in the table. A cut may keep the pieces a
+    mesh has; one that makes more is still refused (a table cut under its top keeps four legs)."""
+    plate = _union(_box((0, 0, 0), (0.2, 0.2, 0.02)), _box((0.3, 0, 0.005), (0.35, 0.05, 0.02)))
+    (p, _), removed = cut_by_plane(plate, np.array([0.0, 0.0, 1.0]), 0.01)
+    assert removed == pytest.approx(0.2 * 0.2 * 0.01 + 0.05 * 0.05 * 0.005) and p[:, 2].min() == pytest.approx(0.01)
+    (q, _), removed = subtract(plate, _box((-0.1, -0.1, -0.1), (0.5, 0.5, 0.008)))
+    assert q[:, 2].min() == pytest.approx(0.008) and removed > 0
+    table = _union(_box((0, 0, 0.7), (1, 1, 0.74)), *(_box((x, y, 0), (x + 0.05, y + 0.05, 0.7))
+                                                       for x in (0, 0.95) for y in (0, 0.95)))  # fmt: skip
+    assert cut_by_plane(table, np.array([0.0, 0.0, -1.0]), -0.5)[1] == 0.0  # control: the legs alone
+
+
 def test_collider_reach_measures_what_the_hull_adds() -> None:
     ell = _union(_box((0, 0, 0), (0.4, 0.1, 0.1)), _box((0, 0, 0.1), (0.1, 0.1, 0.4)))  # an L
     hull = trimesh.Trimesh(*ell).convex_hull
@@ -457,6 +471,59 @@ def test_a_plateau_fitted_under_a_sunk_child_goes_with_the_child() -> None:
     assert highest_under(cut) < 0.7605, cut.edits
     kept = _flatten_top(body("table", top), [body("book", resting)], config)
     assert highest_under(kept) > 0.78  # (flattened by what the child can follow down: max_shift / 2)
+
+
+def test_a_child_yields_what_of_its_supports_mesh_no_collider_part_covers() -> None:
+    """The phone demo's shelf kept a sliver of a fitted lump in its bottle's back (2.8 cm^3, 5 cm deep) that its
+    decomposition had dropped (under 1e-4 of its volume): the bottle's cut by the shelf's collider left it. The
+    child is cut by the support's mesh too, and its SDF follows."""
+    from holousd.geometry import box_sdf
+    from holousd.stages._physics_one import _Body, _grid_points
+    from holousd.usd import SdfField
+
+    lo, hi, voxel = np.array([0.0, 0.0, 0.0]), np.array([0.1, 0.1, 0.2]), 0.005
+    origin = lo - 2 * voxel
+    shape = tuple(int(v) for v in np.ceil((hi - lo) / voxel) + 5)
+    axes = [origin[i] + voxel * np.arange(shape[i]) for i in range(3)]
+    sdf = box_sdf(np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3), lo, hi).reshape(shape)
+    points, faces = _box(tuple(lo), tuple(hi))
+    bottle = _Body(name="bottle", mesh=MeshData(points=points, faces=faces),
+                   sdf=SdfField(grid=sdf, origin=origin, voxel_size=voxel), pose=Pose(translation=[1.0, 0.0, 0.5]),
+                   fit_pose=Pose(translation=[1.0, 0.0, 0.5]))  # fmt: skip
+    lump = _box((1.08, 0.02, 0.55), (1.2, 0.08, 0.65))  # world: 2 cm into the bottle's side
+    cut = bottle.minus_mesh(lump, "cut:parent:mesh")
+    assert cut.edits == ("cut:parent:mesh",) and overlap(cut.world(), lump).volume_m3 < 1e-9
+    removed = mass_properties((points, faces), 1.0).volume_m3 - mass_properties(cut.world(), 1.0).volume_m3
+    assert removed == pytest.approx(0.02 * 0.06 * 0.1, rel=1e-3)
+    grid = _grid_points(cut.sdf) + [1.0, 0.0, 0.5]
+    values = cut.sdf.grid.reshape(-1)
+    in_lump = np.all((grid > [1.085, 0.025, 0.555]) & (grid < [1.1, 0.075, 0.645]), axis=1)
+    assert in_lump.any() and (values[in_lump] > 0).all()  # outside the bottle now
+    kept = np.all((grid > [1.005, 0.005, 0.505]) & (grid < [1.075, 0.095, 0.695]), axis=1)
+    assert (values[kept] < 0).all()
+    assert bottle.minus_mesh(_box((2.0, 0.0, 0.0), (2.1, 0.1, 0.1)), "cut:parent:mesh") is bottle  # no overlap
+
+
+def test_a_childs_filled_top_stays_out_from_under_its_neighbour() -> None:
+    """The phone demo's table was cut flat at two heights under a book and a box beside it; the box's dents were
+    filled up to its surface over its footprint and the centimetre around it, a ridge 1.5 cm up under the book's
+    edge, on which the book then rested and tipped 5 degrees. The fill keeps to the child's own footprint."""
+    from holousd.stages._physics_one import _Body, _first_hits_down, _flatten_top
+
+    def body(name: str, mesh: tuple[np.ndarray, np.ndarray]) -> _Body:
+        points, faces = mesh
+        return _Body(name=name, mesh=MeshData(points=points, faces=faces), sdf=None, pose=Pose(), fit_pose=Pose())
+
+    stepped = _union(_box((-0.4, -0.3, 0.68), (0.4, 0.3, 0.74)), _box((0.0, -0.3, 0.74), (0.4, 0.3, 0.755)))
+    book, box = _box((-0.2, -0.1, 0.741), (-0.005, 0.1, 0.8)), _box((0.0, -0.1, 0.756), (0.2, 0.1, 0.8))
+    table = _flatten_top(body("table", stepped), [body("book", book), body("box", box)], PhysicsSetupConfig())
+    assert any(e.startswith("fill:top:box") or e.startswith("span:top:box") for e in table.edits), table.edits
+    xs, ys = np.meshgrid(np.linspace(-0.199, -0.006, 40), np.linspace(-0.09, 0.09, 5))
+    origins = np.column_stack([xs.ravel(), ys.ravel(), np.full(xs.size, 1.0)])
+    hits, rays = _first_hits_down(table.world(), origins)
+    assert len(rays) == len(origins) and hits[:, 2].max() < 0.7405  # flat under the whole book
+    box_hits, _ = _first_hits_down(table.world(), origins + [0.206, 0.0, 0.0])
+    assert np.ptp(box_hits[:, 2]) < 5e-4 and box_hits[:, 2].min() > 0.75  # under the box: flat, at its height
 
 
 # ----------------------------------------------------------------------------------------------- decomposition

@@ -13,7 +13,8 @@ objects:
    below the highest point there that comes within ``bottom_band`` of the child's underside, and no deeper than
    the child can follow), inside the child's footprint (1 cm wider) up to ``top_depth`` above that surface,
    and under the child's outline up to ``2 * top_depth`` above its bottom (a lump hidden under its overhang);
-   its dents there are filled up to that flat surface, and where it is open under the child (rays fall through
+   its dents under the child's footprint (not the centimetre beyond, which may be a neighbour's, cut flat
+   lower) are filled up to that flat surface, and where it is open under the child (rays fall through
    to a lower part of it or miss) the surface is carried over the opening within the rectangle of the
    support's own top at that height (a fitted top is a bumpy dome of facets, and no camera sees it under what
    rests on it; a wall beside stays);
@@ -24,8 +25,9 @@ objects:
    half its width with the centre of mass over it (``base_depth``, ``base_margin``), the object moved down when it
    floats above, by at most ``max_shift`` from its fitted pose counting its parent's moves (when that brings it onto its
    support, its base is cut less deep; an object that cannot reach its support is left where it was seen, and the
-   refused move recorded). Whatever of the support's collider still lies inside the child is cut away from the child's
-   mesh and SDF. Children follow their parent's moves.
+   refused move recorded). Whatever of the support's collider, or of its mesh (a sliver its decomposition
+   dropped), still lies inside the child is cut away from the child's mesh and SDF. Children follow their
+   parent's moves.
 4. ``separate``: neighbours whose meshes still overlap are cut apart at the middle of the overlap, across its
    thinnest axis, within the overlap's bounds (1 cm wider), as two real objects meet at one face.
 5. ``shape``: the convex hull of the mesh is the collider when it reaches at most ``hull_tolerance`` outside
@@ -258,6 +260,40 @@ class _Body:
         return replace(self, mesh=MeshData(points=points, faces=faces), sdf=sdf, edits=(*self.edits, edit),
                        collider=None)
 
+    def minus_mesh(self, other: tuple[np.ndarray, np.ndarray], edit: str, *, min_keep: float = 0.7) -> _Body:
+        """The body with whatever of the closed world mesh ``other`` lies inside it removed from its mesh and SDF
+        (around the overlap the SDF takes the new mesh's signed distance where that is larger); unchanged as
+        :meth:`minus_convex` leaves it."""
+        import trimesh
+
+        from holousd.geometry._contact import inside
+
+        inverse = np.linalg.inv(self.pose.matrix())
+        local = (np.asarray(other[0], float) @ inverse[:3, :3].T + inverse[:3, 3], np.asarray(other[1]))
+        both = overlap((self.mesh.points, self.mesh.faces), local)
+        (points, faces), removed = subtract((self.mesh.points, self.mesh.faces), local, min_keep=min_keep)
+        if removed <= 0:
+            return self
+        points, faces = without_zero_area_faces((points, faces))  # the boolean's slivers
+        if not _closed(_drop_degenerate(MeshData(points=points, faces=faces))):  # as authored (float32): a mesh
+            return self  # that no longer closes has no decomposition, and its hull would fill the cut
+        sdf = self.sdf
+        if sdf is not None:
+            values = sdf.grid.reshape(-1).astype(np.float64)
+            grid = _grid_points(sdf)
+            # the samples around the overlap, measured against the new mesh (the body's own: rays against the
+            # other's, a table's, took gigabytes)
+            margin = 2.0 * sdf.voxel_size
+            near = np.flatnonzero(np.all((grid >= both.lo - margin) & (grid <= both.hi + margin), axis=1))
+            if len(near):
+                target = trimesh.Trimesh(points, faces, process=False)
+                distance = trimesh.proximity.closest_point(target, grid[near])[1]
+                signed = np.where(inside(target, grid[near]), -distance, distance)
+                values[near] = np.maximum(values[near], signed)
+            sdf = replace(sdf, grid=values.reshape(sdf.grid.shape).astype(np.float32))
+        return replace(self, mesh=MeshData(points=points, faces=faces), sdf=sdf, edits=(*self.edits, edit),
+                       collider=None)
+
     def within_convex(self, parts: list[tuple[np.ndarray, np.ndarray]], edit: str) -> _Body:
         """The body cut to what of it lies inside its own convex ``parts`` (object coordinates: its collider),
         in its mesh and SDF; unchanged when that would split it or remove much (see :func:`within`)."""
@@ -459,6 +495,11 @@ def _rest(bodies: dict[str, _Body], relations: Relations, room: tuple[np.ndarray
                     body = unextended
         if support_parts:  # what of the support's collider still lies inside the child
             body = body.minus_convex(support_parts, "cut:parent")
+            # and of its mesh: a sliver of it the decomposition dropped (under 1e-4 of its volume) is no part of
+            # the collider (the phone demo's shelf kept 2.8 cm^3 of a fitted lump in its bottle's back, 5 cm deep)
+            if overlap(body.world(), out[parent].world()).volume_m3 > config.min_overlap:
+                body = body.minus_mesh(out[parent].world(), "cut:parent:mesh",
+                                       min_keep=1.0 - config.max_separation_loss)  # fmt: skip
         out[name] = body
     return out
 
@@ -542,10 +583,11 @@ def _flatten_top(parent: _Body, children: list[_Body], config: PhysicsSetupConfi
     """Cut a support's surface flat under each child resting on it: what of the support stands above the
     lowest point of its surface under the child (at most ``top_depth`` below the highest point there that comes
     within ``bottom_band`` of the child's underside, and no deeper than the child can follow), inside the
-    child's footprint (1 cm wider) up to ``top_depth`` above it, and under the child's
-    outline up to ``2 * top_depth`` above the child's bottom, is cut away from the support's mesh and SDF
-    (``cut:top``, ``cut:under``); the dents there below that surface are filled up to it, or where the support
-    is open under the child, the surface carried over the opening (:func:`_filled_up_to`). A fitted top is a
+    child's footprint (1 cm wider) up to ``top_depth`` above it, and under the child's outline up to ``2 *
+    top_depth`` above the child's bottom (above the flat surface, for a child sunk below it), is cut away from the
+    support's mesh and SDF (``cut:top``, ``cut:under``); the dents under the footprint below that surface are
+    filled up to it, or where the support is open under the child, the surface carried over the opening
+    (:func:`_filled_up_to`). A fitted top is a
     bumpy dome of facets, on which a child's flat base would rock; a wall or rim beside the child and a board
     above it stay (but for what of them lies within 1 cm of the footprint, up to ``top_depth`` above its
     surface)."""
@@ -589,7 +631,11 @@ def _flatten_top(parent: _Body, children: list[_Body], config: PhysicsSetupConfi
         if outline is not None:
             column = np.concatenate([np.column_stack([outline, np.full(len(outline), z)]) for z in (plane, under)])
             cut = cut.minus_convex([convex_hull(column)], f"cut:under:{child.name}")
-        cut = _filled_up_to(cut, lo, hi, config.top_depth, f"fill:top:{child.name}")
+        # dents are filled under the child's own footprint, not the 1 cm beyond: that can be a neighbour's, cut
+        # flat lower (the phone demo's table: a box's fill stood 1.5 cm up under the edge of the book beside it,
+        # which then rested on that ridge and tipped 5 degrees)
+        inner = (np.array([*c[:, :2].min(axis=0), plane]), np.array([*c[:, :2].max(axis=0), hi[2]]))
+        cut = _filled_up_to(cut, *inner, config.top_depth, f"fill:top:{child.name}")
         if cut is not body:  # flat at `plane` there now: the collider's decomposition cuts along it
             axes = np.eye(3)
             sides = tuple(_local_plane(cut.pose, sign * axes[k], sign * bound[k])
