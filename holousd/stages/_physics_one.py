@@ -12,7 +12,8 @@ objects:
    support, the support's surface is cut flat at the lowest point of it under the child (at most ``top_depth``
    below the highest point there that comes within ``bottom_band`` of the child's underside, and no deeper than
    the child can follow), inside the child's footprint (1 cm wider) up to ``top_depth`` above that surface,
-   and under the child's outline up to ``2 * top_depth`` above its bottom (a lump hidden under its overhang);
+   and under the child's outline up to ``2 * top_depth`` above its bottom (a lump hidden under its overhang;
+   above the flat surface, for a child fitted down through it);
    its dents under the child's footprint (not the centimetre beyond, which may be a neighbour's, cut flat
    lower) are filled up to that flat surface, and where it is open under the child (rays fall through
    to a lower part of it or miss) the surface is carried over the opening within the rectangle of the
@@ -587,10 +588,9 @@ def _flatten_top(parent: _Body, children: list[_Body], config: PhysicsSetupConfi
     top_depth`` above the child's bottom (above the flat surface, for a child sunk below it), is cut away from the
     support's mesh and SDF (``cut:top``, ``cut:under``); the dents under the footprint below that surface are
     filled up to it, or where the support is open under the child, the surface carried over the opening
-    (:func:`_filled_up_to`). A fitted top is a
-    bumpy dome of facets, on which a child's flat base would rock; a wall or rim beside the child and a board
-    above it stay (but for what of them lies within 1 cm of the footprint, up to ``top_depth`` above its
-    surface)."""
+    (:func:`_filled_up_to`). A fitted top is a bumpy dome of facets, on which a child's flat base would rock; a
+    wall or rim beside the child and a board above it stay (but for what of them lies within 1 cm of the
+    footprint, up to ``top_depth`` above its surface)."""
     from scipy.spatial import ConvexHull, QhullError
 
     from holousd.physics import convex_hull
