@@ -261,10 +261,11 @@ class _Body:
         return replace(self, mesh=MeshData(points=points, faces=faces), sdf=sdf, edits=(*self.edits, edit),
                        collider=None)
 
-    def minus_mesh(self, other: tuple[np.ndarray, np.ndarray], edit: str, *, min_keep: float = 0.7) -> _Body:
+    def minus_mesh(self, other: tuple[np.ndarray, np.ndarray], edit: str, *, min_keep: float = 0.7,
+                   min_volume: float = 0.0) -> _Body:  # fmt: skip
         """The body with whatever of the closed world mesh ``other`` lies inside it removed from its mesh and SDF
         (around the overlap the SDF takes the new mesh's signed distance where that is larger); unchanged as
-        :meth:`minus_convex` leaves it."""
+        :meth:`minus_convex` leaves it, and when they overlap by at most ``min_volume`` m^3."""
         import trimesh
 
         from holousd.geometry._contact import inside
@@ -272,6 +273,8 @@ class _Body:
         inverse = np.linalg.inv(self.pose.matrix())
         local = (np.asarray(other[0], float) @ inverse[:3, :3].T + inverse[:3, 3], np.asarray(other[1]))
         both = overlap((self.mesh.points, self.mesh.faces), local)
+        if both.volume_m3 <= min_volume:
+            return self
         (points, faces), removed = subtract((self.mesh.points, self.mesh.faces), local, min_keep=min_keep)
         if removed <= 0:
             return self
@@ -498,9 +501,8 @@ def _rest(bodies: dict[str, _Body], relations: Relations, room: tuple[np.ndarray
             body = body.minus_convex(support_parts, "cut:parent")
             # and of its mesh: a sliver of it the decomposition dropped (under 1e-4 of its volume) is no part of
             # the collider (the phone demo's shelf kept 2.8 cm^3 of a fitted lump in its bottle's back, 5 cm deep)
-            if overlap(body.world(), out[parent].world()).volume_m3 > config.min_overlap:
-                body = body.minus_mesh(out[parent].world(), "cut:parent:mesh",
-                                       min_keep=1.0 - config.max_separation_loss)  # fmt: skip
+            body = body.minus_mesh(out[parent].world(), "cut:parent:mesh", min_keep=1.0 - config.max_separation_loss,
+                                   min_volume=config.min_overlap)  # fmt: skip
         out[name] = body
     return out
 
