@@ -185,8 +185,9 @@ class FusionResult:
           above the floor it rests on; a table none of whose legs was seen);
         - voxels no frame observed at all (hidden behind other objects: a table top under the book lying on
           it) are inside where the instance's observed solid walls them in on three of their four horizontal
-          sides, in their slice, and none of it lies above them (the back of a shelf's compartment behind a bowl
-          stays open).
+          sides, in their slice (the first thing seen along the line, not beyond space seen free: a sofa's arms
+          and back around a box on its seat wall in nothing), and none of it lies above them (the back of a
+          shelf's compartment behind a bowl stays open).
 
         An opening is space at least ``min_free`` frames saw free, in a piece of at least ``min_opening`` such
         voxels (faces shared): a noisy depth sensor's return centimetres too far (a flying pixel at an edge)
@@ -204,8 +205,14 @@ class FusionResult:
         observed = ((self.weight > 0) & (self.tsdf < 0)).reshape(shape)
         # never observed at all (behind other objects in every frame that looks there), walled in by the
         # observed solid on three of four horizontal sides in its slice, with none of it above (the top of a
-        # table under a book lying on it; not the back of a shelf's compartment behind a bowl)
-        walls = sum(_reaches(observed, axis, step).astype(np.int8) for axis in (0, 1) for step in (1, -1))
+        # table under a book lying on it; not the back of a shelf's compartment behind a bowl). A wall is the
+        # first thing seen along the line: beyond space seen free it walls in nothing (a sofa's arms and back
+        # around the box standing on its seat, whose inside it would fill); free is what ``min_free`` frames saw
+        # a truncation distance or more in front of a surface, not the band just above one (a top's surface
+        # voxels beside what stands on it)
+        seen_free = (self.free >= min_free) & ~observed.reshape(-1)
+        seen = np.where(observed, 1, np.where(seen_free.reshape(shape), 2, 0)).astype(np.int8)
+        walls = sum((_first_seen(seen, axis, step) == 1).astype(np.int8) for axis in (0, 1) for step in (1, -1))
         unseen = ((self.weight == 0) & (self.outside == 0) & (self.inside == 0)).reshape(shape)
         unseen &= (walls >= 3) & ~_reaches(observed, 2, 1)
         solid = observed | unseen
@@ -244,6 +251,21 @@ def _reaches(solid: np.ndarray, axis: int, step: int) -> np.ndarray:
     if step > 0:
         return np.flip(np.maximum.accumulate(np.flip(solid, axis=axis), axis=axis), axis=axis)
     return np.maximum.accumulate(solid, axis=axis)
+
+
+def _first_seen(code: np.ndarray, axis: int, step: int) -> np.ndarray:
+    """[X, Y, Z] the first non-zero ``code`` met on a straight line from each voxel along ``axis`` (forwards with
+    ``step`` 1, backwards with -1), the voxel itself included; 0 where the line meets none."""
+    n = code.shape[axis]
+    shape = [1] * code.ndim
+    shape[axis] = n
+    index = np.arange(n).reshape(shape)
+    if step > 0:
+        at = np.flip(np.minimum.accumulate(np.flip(np.where(code > 0, index, n), axis=axis), axis=axis), axis=axis)
+    else:
+        at = np.maximum.accumulate(np.where(code > 0, index, -1), axis=axis)
+    met = np.take_along_axis(code, np.clip(at, 0, n - 1), axis=axis)
+    return np.where((at >= 0) & (at < n), met, 0)
 
 
 def _large_pieces(select: np.ndarray, shape: tuple[int, int, int], size: int) -> np.ndarray:
