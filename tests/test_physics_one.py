@@ -986,3 +986,25 @@ def test_colliders_still_overlapping_are_clipped_apart_and_the_mesh_follows() ->
     deep = {"book": body("book", book, book), "box": body("box", box, _box((0.09, 0.0, 0.0), (0.2, 0.2, 0.1)))}
     kept = _unclasped(deep, PhysicsSetupConfig())
     assert _penetration("box", kept, []) == pytest.approx(0.01, abs=2e-4) and kept["box"].edits == ()
+
+
+def test_a_top_dented_under_its_child_is_cut_flat_at_the_surface_seen_around_it(tmp_path: Path) -> None:
+    """bench_02's box was fitted 1.2 cm low under the mug standing on it (no camera sees a top under what stands
+    on it), and the mug's front 1.2 cm down into that dent; the top was cut flat in the dent, the front became
+    the mug's base with its centre of mass 2 cm behind it, and it tipped. The top is cut flat no lower than the
+    surface the cameras saw around the child: the dent is filled, the front cut at the top, and it stands."""
+    dented = trimesh.Trimesh(*_box((-0.3, -0.3, -0.005), (0.3, 0.3, 0.76))).difference(
+        trimesh.Trimesh(*_box((-0.06, -0.06, 0.748), (0.06, 0.06, 0.8))), engine="manifold")
+    mug = _union(_box((-0.04, -0.04, 0.761), (0.04, 0.04, 0.86)), _box((-0.04, -0.04, 0.749), (0.04, -0.03, 0.77)))
+    scene = _scene(tmp_path, {"box": (np.asarray(dented.vertices), np.asarray(dented.faces)), "mug": mug})
+    rec = _records(setup_physics(scene, PhysicsSetupConfig()))
+    assert rec["mug"].parent == "box", rec["mug"]
+    xs, ys = np.meshgrid(np.linspace(-0.039, 0.039, 9), np.linspace(-0.039, 0.039, 9))
+    origins = np.column_stack([xs.ravel(), ys.ravel(), np.full(xs.size, 1.0)])
+    top = trimesh.Trimesh(_world(scene, "box"), scene.get_mesh("box").faces, process=False)
+    hits, rays, _ = top.ray.intersects_location(origins, np.tile([0.0, 0.0, -1.0], (len(origins), 1)),
+                                                multiple_hits=False)  # fmt: skip
+    assert len(rays) == len(origins) and hits[:, 2].min() > 0.7585, np.round(hits[:, 2], 4)  # the dent is filled
+    assert _world(scene, "mug")[:, 2].min() > 0.7585  # its front is cut at the top
+    assert rec["mug"].penetration_m < 1e-3
+    assert all(xpbd and mujoco for xpbd, mujoco in _verdicts(scene).values())

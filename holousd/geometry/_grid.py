@@ -159,6 +159,9 @@ class FusionResult:
     free: np.ndarray | None = None
     """[P] int32 frames in which the voxel lies in observed free space (in front of an observed surface, any
     label); None where not counted."""
+    behind: np.ndarray | None = None
+    """[P] float32 the least distance, metres, the voxel lies behind the instance's observed surface over the
+    frames in which it does (``inside``); inf where it never does; None where not measured."""
 
     def solid_sdf(self, trunc: float, shape: tuple[int, int, int] | None = None, keep: float = 2.0,
                   min_free: int = 2, min_opening: int = 4) -> np.ndarray:
@@ -322,6 +325,7 @@ def fuse_tsdf(
     inside = np.zeros(n, np.int32)
     outside = np.zeros(n, np.int32)
     seen_free = np.zeros(n, np.int32)
+    behind = np.full(n, np.inf, np.float32)
     frames = range(len(views)) if frames is None else frames
     for start in range(0, n, chunk):
         sl = slice(start, min(n, start + chunk))
@@ -338,10 +342,11 @@ def fuse_tsdf(
             sdf_sum[sl] += np.where(band, delta, 0.0) + np.where(free, trunc, 0.0)
             weight[sl] += band | free
             inside[sl] += own & (delta <= -trunc)
+            behind[sl] = np.minimum(behind[sl], np.where(own & (delta <= -trunc), -delta, np.inf))
             outside[sl] += free | (valid & (lab == 0) & (delta <= -trunc))
             seen_free[sl] += free
     tsdf = np.where(weight > 0, sdf_sum / np.maximum(weight, 1.0), trunc).astype(np.float32)
-    return FusionResult(tsdf=tsdf, weight=weight, inside=inside, outside=outside, free=seen_free)
+    return FusionResult(tsdf=tsdf, weight=weight, inside=inside, outside=outside, free=seen_free, behind=behind)
 
 
 @dataclass(kw_only=True)

@@ -17,8 +17,9 @@ Pipeline per capture:
 4. Initialisation: TSDF fusion of the instance's masked depth over its grid (free space and "behind the room
    shell" carve; "behind the instance's surface" fills the unseen inside where that is enclosed, not where it
    opens onto space a camera saw through: the space under a table top), intersected with the observed extent
-   and the half-space above the floor; without depth, the carved visual hull (coarse to fine) turned into a
-   signed distance.
+   and the half-space above the floor; hidden space two instances both hold solid goes to the one whose seen
+   surface it lies closer behind (a box in a shelf's compartment, not the shelf's upper board seen from above);
+   without depth, the carved visual hull (coarse to fine) turned into a signed distance.
 5. Refinement by differentiable volume rendering (:mod:`holousd.render._volume`): RGB, instance-mask
    cross-entropy, depth (L1, or scale-and-shift invariant for relative depth), normals, eikonal, smoothness and
    the ObjectSDF++ overlap penalty ``relu(-s_a - s_b)``; rays are instance-balanced (half of each frame's rays
@@ -490,6 +491,7 @@ class _Instance:
     grid: VoxelGrid | None = None
     sdf: np.ndarray | None = None  # [X, Y, Z]
     frozen: np.ndarray | None = None  # [X, Y, Z] voxels no fused frame saw (behind others): the refinement keeps them
+    claim: np.ndarray | None = None  # [X, Y, Z] how far its hidden solid lies behind its seen surface (nan: none)
     color: np.ndarray = field(default_factory=lambda: np.full(3, 0.5))
 
 
@@ -693,6 +695,9 @@ def _init_metric(inst: _Instance, views: Views, fusion: np.ndarray, floor: float
     if floor is not None:
         sdf = np.maximum(sdf, (floor - pts[:, 2]).astype(np.float32))
     inst.sdf = sdf.reshape(fine.shape).astype(np.float32)
+    if fused.behind is not None:
+        hidden = (fused.weight == 0) & (sdf < 0) & np.isfinite(fused.behind)
+        inst.claim = np.where(hidden, fused.behind, np.nan).astype(np.float32).reshape(fine.shape)
 
 
 def _init_hull(inst: _Instance, views: Views, fusion: np.ndarray, floor: float | None, config: FitConfig) -> None:
@@ -765,6 +770,43 @@ def _background_estimated(frames: _Frames, fusion: np.ndarray) -> tuple[float | 
     allpts = np.concatenate(every + [views.poses[:, :3, 3]])
     lo, hi = np.percentile(allpts, 1.0, axis=0), np.percentile(allpts, 99.0, axis=0)
     return floor, _floor_slab(floor, lo - 0.5, hi + 0.5)
+
+
+def _resolve_hidden_claims(instances: list[_Instance], ratio: float = 0.5) -> None:
+    """Hidden space two instances both hold solid (behind the surface each was seen by) goes to the one it lies
+    closer behind: the other's claim must be at least 1 / ``ratio`` times as far, and a voxel farther. Seen from
+    above, the inside of a box standing in a shelf's compartment lies 20 cm behind the shelf's upper board, and a
+    few centimetres behind the box's own front; split at their mid-surface, both lost it (bench_02's mug in a
+    shelf came out a crescent of its front, a third of its volume, and tipped)."""
+    yields: dict[int, np.ndarray] = {}
+    for a, ia in enumerate(instances):
+        if ia.claim is None or ia.grid is None or ia.sdf is None or not np.isfinite(ia.claim).any():
+            continue
+        ga = ia.grid
+        held = np.isfinite(ia.claim.reshape(-1))
+        pts = ga.points()
+        lose = np.zeros(len(pts), bool)
+        for b, ib in enumerate(instances):
+            if b == a or ib.claim is None or ib.grid is None or not np.isfinite(ib.claim).any():
+                continue
+            gb = ib.grid
+            inbox = held & np.all((pts >= gb.origin) & (pts <= gb.upper), axis=1)
+            if not inbox.any():
+                continue
+            index = np.clip(np.rint((pts[inbox] - gb.origin) / gb.voxel_size).astype(int), 0,
+                            np.asarray(gb.shape) - 1)  # fmt: skip
+            other = ib.claim[index[:, 0], index[:, 1], index[:, 2]]
+            own = ia.claim.reshape(-1)[inbox]
+            stronger = np.isfinite(other) & (other < ratio * own) & (own - other > ga.voxel_size)
+            lose[np.nonzero(inbox)[0][stronger]] = True
+        if lose.any():
+            yields[a] = lose
+    for a, lose in yields.items():
+        inst = instances[a]
+        flat = inst.sdf.reshape(-1).copy()
+        flat[lose] = np.abs(flat[lose])
+        inst.sdf = flat.reshape(inst.grid.shape)
+        inst.claim = np.where(lose.reshape(inst.grid.shape), np.nan, inst.claim)
 
 
 def _resolve_overlaps(instances: list[_Instance]) -> None:
@@ -1188,6 +1230,7 @@ def fit(scene: SceneGraph, obs: Observations, config: FitConfig | None = None,
             bar.update(1)
             bar.set_postfix(object=inst.name)
     if config.resolve_overlaps:
+        _resolve_hidden_claims(instances)
         _resolve_overlaps(instances)
     timings["init"] = time.perf_counter() - t0
 
