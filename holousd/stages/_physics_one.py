@@ -614,11 +614,17 @@ def _flatten_top(parent: _Body, children: list[_Body], config: PhysicsSetupConfi
         # (half the largest move: its own base cut takes the rest)
         plane = max(float(np.percentile(hits[:, 2], 10)), highest - config.top_depth, bottom - config.max_shift / 2)
         c = child.world()[0]
-        # no lower than the surface seen around the child, where that lies within top_depth above: the top under
-        # a child is hidden by it, and a fit leaves it dented there as often as domed (bench_02's box was fitted
-        # 1.2 cm low under the mug on it; the top was cut flat in the dent, the mug's front, fitted down into it,
-        # became its base, with the centre of mass 2 cm outside, and it tipped)
-        plane = max(plane, _level_around(c, body.world(), plane, config.top_depth))
+        # no lower than the surface seen around the child, where that lies within top_depth above and the child's
+        # underside, over most of its outline, no lower: the top under a child is hidden by it, and a fit leaves
+        # it dented there as often as domed (bench_02's box was fitted 1.2 cm low under the mug on it; the top was
+        # cut flat in the dent, the mug's front, fitted down into it, became its base with the centre of mass 2 cm
+        # outside, and it tipped); a child standing in a recess, lower than the rim around it, stays on its floor
+        around = _level_around(c, body.world(), plane, config.top_depth)
+        if around > plane:
+            underside = _underside(child, _outline_grid(c))
+            underside = underside[np.isfinite(underside)]
+            if len(underside) and around <= float(np.median(underside)) + config.clearance:
+                plane = around
         lo = np.array([*(c[:, :2].min(axis=0) - 0.01), plane])
         # bumps in the footprint's corners up to top_depth above the flat surface go with it (a hull spanning
         # one and the flat surface bridged demo's bowl base 1.6 cm up); a wall beside keeps what stands higher
@@ -653,10 +659,10 @@ def _flatten_top(parent: _Body, children: list[_Body], config: PhysicsSetupConfi
 
 def _level_around(points: np.ndarray, support: tuple[np.ndarray, np.ndarray], plane: float, depth: float,
                   spacing: float = 0.01, share: float = 0.25) -> float:
-    """The height of ``support``'s surface (a world mesh) seen around a child (its world ``points``), between
-    ``plane`` and ``depth`` above it: the median of the first hits of rays cast down on two rectangles 1.5 and
-    2.5 cm outside the child's footprint, every ``spacing``, of those that land in that band, when at least
-    ``share`` of the rays do (past the support's edge, under a neighbour or on a wall they do not); -inf else."""
+    """The height of ``support``'s surface (a world mesh) seen around a child (its world ``points``), near
+    ``plane``: the median of the first hits of rays cast down on two rectangles 1.5 and 2.5 cm outside the
+    child's footprint, every ``spacing``, of those that land within ``depth`` of it, when at least ``share`` of
+    the rays do (past the support's edge or on a wall they do not); -inf else."""
     lo, hi = points[:, :2].min(axis=0), points[:, :2].max(axis=0)
     rings = []
     for out in (0.015, 0.025):
@@ -667,7 +673,7 @@ def _level_around(points: np.ndarray, support: tuple[np.ndarray, np.ndarray], pl
         rings += [np.column_stack([np.full(ny - 2, x), ys[1:-1]]) for x in (a[0], b[0])]
     ring = np.concatenate(rings)
     hits, _ = _first_hits_down(support, np.column_stack([ring, np.full(len(ring), plane + depth + 0.01)]))
-    level = hits[(hits[:, 2] > plane) & (hits[:, 2] <= plane + depth), 2] if len(hits) else np.zeros(0)
+    level = hits[np.abs(hits[:, 2] - plane) <= depth, 2] if len(hits) else np.zeros(0)
     return float(np.median(level)) if len(level) >= share * len(ring) else -np.inf
 
 
