@@ -11,7 +11,9 @@ objects:
 3. ``rest``: breadth-first from the room, each object is set onto its support. Under each child resting on a
    support, the support's surface is cut flat at the lowest point of it under the child (at most ``top_depth``
    below the highest point there that comes within ``bottom_band`` of the child's underside, and no deeper than
-   the child can follow), inside the child's footprint (1 cm wider) up to ``top_depth`` above that surface,
+   the child can follow; no lower than the surface seen around the child, within ``top_depth`` of that point,
+   where the child's underside is no lower: a top the fit dented under what hides it), inside the child's
+   footprint (1 cm wider) up to ``top_depth`` above that surface,
    and under the child's outline up to ``2 * top_depth`` above its bottom (a lump hidden under its overhang;
    above the flat surface, for a child fitted down through it);
    its dents under the child's footprint (not the centimetre beyond, which may be a neighbour's, cut flat
