@@ -213,8 +213,7 @@ class FusionResult:
         # around the box standing on its seat, whose inside it would fill); free is what ``min_free`` frames saw
         # a truncation distance or more in front of a surface, not the band just above one (a top's surface
         # voxels beside what stands on it)
-        seen_free = (self.free >= min_free) & ~observed.reshape(-1)
-        seen = np.where(observed, 1, np.where(seen_free.reshape(shape), 2, 0)).astype(np.int8)
+        seen = np.where(observed, 1, np.where((self.free >= min_free).reshape(shape), 2, 0)).astype(np.int8)
         walls = sum((_first_seen(seen, axis, step) == 1).astype(np.int8) for axis in (0, 1) for step in (1, -1))
         unseen = ((self.weight == 0) & (self.outside == 0) & (self.inside == 0)).reshape(shape)
         unseen &= (walls >= 3) & ~_reaches(observed, 2, 1)

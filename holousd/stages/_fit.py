@@ -806,7 +806,8 @@ def _resolve_hidden_claims(instances: list[_Instance], ratio: float = 0.5) -> No
         flat = inst.sdf.reshape(-1).copy()
         flat[lose] = np.abs(flat[lose])
         inst.sdf = flat.reshape(inst.grid.shape)
-        inst.claim = np.where(lose.reshape(inst.grid.shape), np.nan, inst.claim)
+    for inst in instances:  # spent: no later step reads them
+        inst.claim = None
 
 
 def _resolve_overlaps(instances: list[_Instance]) -> None:
