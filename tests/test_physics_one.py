@@ -575,6 +575,21 @@ def test_a_decomposition_whose_budget_is_spent_still_cuts_what_reaches_far_outsi
     assert len(cut.parts) >= 5 and collider_reach(cut.parts, table) <= 0.02
 
 
+def test_no_cut_leaves_a_hair_thin_piece_that_is_not_convex() -> None:
+    """A cut a hair off a face leaves a sheet with the outline of what stood there; when that outline is not convex
+    its hull spans the gap (bench_00's shelf was peeled in half-millimetre sheets, each the outline of a
+    compartment's wall, 16 cm outside the mesh). A block with a 1 mm U-shaped plate on its back, wider than the
+    block, cut into two pieces: the plate is not taken off alone."""
+    from holousd.geometry import plane_decomposition
+
+    plate = [_box((0.0, y0, 0.0), (0.001, y1, 0.4)) for y0, y1 in ((-0.2, -0.15), (0.15, 0.2))]
+    block = _union(_box((0.0, -0.2, 0.0), (0.001, 0.2, 0.05)), *plate, _box((0.001, -0.12, 0.0), (0.1, 0.12, 0.4)))
+    found = plane_decomposition(block, tolerance=0.003, max_parts=2)
+    assert len(found.parts) == 2
+    for part in found.parts:
+        assert np.ptp(part[0], axis=0).min() >= 0.0015 or collider_reach([part], block) <= 0.003
+
+
 def test_zero_area_faces_go_and_a_closed_mesh_stays_closed() -> None:
     from holousd.geometry._contact import without_zero_area_faces
 

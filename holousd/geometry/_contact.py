@@ -18,6 +18,7 @@ __all__ = [
     "MassProperties",
     "collider_reach",
     "cut_by_plane",
+    "farthest_outside",
     "inside",
     "mass_properties",
     "overlap",
@@ -225,7 +226,6 @@ def collider_reach(parts: list[Mesh], mesh: Mesh, *, samples: int = 2000, seed: 
         parts = [(np.asarray(h.vertices), np.asarray(h.faces))
                  for h in (trimesh.convex.convex_hull(np.asarray(p, float)) for p, _ in parts)]  # fmt: skip
     target = trimesh.Trimesh(vertices=mesh[0], faces=mesh[1], process=False)
-    orientation = 1.0 if target.volume >= 0 else -1.0  # an inside-out mesh has its normals pointing in
     rng = np.random.default_rng(seed)
     points = []
     areas = []
@@ -242,10 +242,22 @@ def collider_reach(parts: list[Mesh], mesh: Mesh, *, samples: int = 2000, seed: 
         points.append(area_samples(tri, area, count, rng))
     if not points:
         return 0.0
-    pts = np.concatenate(points)
+    return farthest_outside(target, np.concatenate(points))
+
+
+def farthest_outside(target, points: np.ndarray) -> float:  # noqa: ANN001 - a trimesh.Trimesh
+    """How far the farthest of ``points`` outside the mesh ``target`` lies from it, metres (0 when all are inside):
+    a point is outside when it lies on the front side of the face it is closest to; the few closest to an edge or a
+    corner, and the farthest said to be outside (until one is confirmed), are decided by ray parity, which costs
+    20x more on fitted meshes than the closest-point query that gives the distances. An open ``target`` has no
+    inside: the sign test alone decides."""
+    import trimesh
+
+    pts = np.asarray(points, float).reshape(-1, 3)
+    if not len(pts):
+        return 0.0
+    orientation = 1.0 if target.volume >= 0 else -1.0  # an inside-out mesh has its normals pointing in
     closest, distance, triangle = trimesh.proximity.closest_point(target, pts)
-    # outside when the point lies on the front side of the face it is closest to (the face-normal sign test;
-    # ray-parity containment costs 20x more on fitted meshes)
     off = distance > 1e-6
     side = orientation * np.einsum("ij,ij->i", pts - closest, target.face_normals[triangle])
     is_outside = side > 0

@@ -114,8 +114,8 @@ def _piece(solid, tolerance: float, keep_out: list | None = None) -> _Piece:  # 
 
 
 class _Outside:
-    """How far the farthest of some points lies outside a closed mesh, metres (0 when all are inside; containment
-    by :func:`inside`'s ray parity, which draws no random direction); the trimesh is built on the first query."""
+    """How far the farthest of some points lies outside a closed mesh, metres (0 when all are inside;
+    :func:`farthest_outside`, deterministic); the trimesh is built on the first query."""
 
     def __init__(self, mesh: Mesh) -> None:
         self.mesh = mesh
@@ -124,17 +124,11 @@ class _Outside:
     def __call__(self, points: np.ndarray) -> float:
         import trimesh
 
-        from holousd.geometry._contact import inside
+        from holousd.geometry._contact import farthest_outside
 
-        at = np.asarray(points, float).reshape(-1, 3)
-        if not len(at):
-            return 0.0
         if self._target is None:
             self._target = trimesh.Trimesh(np.asarray(self.mesh[0], float), np.asarray(self.mesh[1]), process=False)
-        at = at[~inside(self._target, at)]
-        if not len(at):
-            return 0.0
-        return float(trimesh.proximity.closest_point(self._target, at)[1].max())
+        return farthest_outside(self._target, points)
 
 
 def _outside(piece: _Piece, outside: _Outside, reach: float) -> float:
@@ -164,16 +158,23 @@ def _offsets(coords: np.ndarray, lo: float, hi: float, offsets: int) -> list[flo
     return found
 
 
-def _best_split(piece: _Piece, offsets: int, min_volume: float) -> list | None:
+def _best_split(piece: _Piece, offsets: int, min_volume: float, min_thickness: float = 0.0015) -> list | None:
     """The components of ``piece`` after the best plane cut; None when no cut helps. A cut scores the hull
     volume its pieces leave in excess of the solid, less half the volume of the pieces it leaves convex (a ring
-    needs two cuts before its excess falls: the first is the one that frees a convex board)."""
+    needs two cuts before its excess falls: the first is the one that frees a convex board). A cut that leaves a
+    piece thinner than ``min_thickness`` along its normal that is not convex is not made: cuts a hair off a face
+    peeled bench_00's shelf in half-millimetre sheets, each the outline of a compartment's wall, whose hulls
+    spanned the compartment 16 cm outside the mesh."""
 
-    def score(parts: list) -> float:
+    def score(parts: list, axis: int) -> float | None:
         hulls = [float(p.hull().volume()) for p in parts]
         volumes = [float(p.volume()) for p in parts]
-        convex = sum(v for v, h in zip(volumes, hulls, strict=True) if h - v <= 0.02 * v)
-        return sum(hulls) - piece.volume - 0.5 * convex
+        convex = [h - v <= 0.02 * v for v, h in zip(volumes, hulls, strict=True)]
+        for part, flat in zip(parts, convex, strict=True):
+            box = np.asarray(part.bounding_box(), float).reshape(2, 3)
+            if not flat and box[1, axis] - box[0, axis] < min_thickness:
+                return None
+        return sum(hulls) - piece.volume - 0.5 * sum(v for v, c in zip(volumes, convex, strict=True) if c)
 
     lo, hi = piece.vertices.min(axis=0), piece.vertices.max(axis=0)
     best, best_score = None, piece.hull_volume - piece.volume
@@ -191,8 +192,8 @@ def _best_split(piece: _Piece, offsets: int, min_volume: float) -> list | None:
             parts = [*_components(above, min_volume), *_components(below, min_volume)]
             if len(parts) < 2:
                 continue
-            value = score(parts)
-            if value < best_score - 1e-12:
+            value = score(parts, axis)
+            if value is not None and value < best_score - 1e-12:
                 best, best_score = parts, value
     return best
 
