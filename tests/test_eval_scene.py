@@ -34,6 +34,7 @@ def test_ground_truth_against_itself_is_perfect(capture: Path) -> None:
     assert set(d) == {"geometry", "render", "physics", "cost", "objects", "notes"}
     assert result.support_accuracy_pct == pytest.approx(100.0)
     assert all(o["stable"] and o["f1"] == pytest.approx(100.0) for o in d["objects"])
+    assert all(o["stable_cross_check"] is True for o in d["objects"])  # each object's MuJoCo verdict beside XPBD's
 
 
 def test_gt_folder_is_accepted_in_both_forms(capture: Path, tmp_path: Path) -> None:

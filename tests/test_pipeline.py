@@ -166,6 +166,9 @@ def test_eval_of_reconstruction_reports_every_key(recon: tuple[Path, _pipeline.P
     assert d["physics"]["or_pct"] == 100.0
     # Stable% counts the ground truth's objects whose reconstruction stands (the rows' verdicts)
     assert d["physics"]["stable_pct"] == pytest.approx(10.0 * sum(o["stable"] is True for o in d["objects"]))
+    # and the cross-check's Stable% counts the rows' MuJoCo verdicts, shown beside XPBD's
+    mujoco = sum(o["stable_cross_check"] is True for o in d["objects"])
+    assert d["physics"]["cross_check"]["stable_pct"] == pytest.approx(10.0 * mujoco)
     # the search's verdict (quasi-static E_stable) beside the protocol's, per object the search scored
     shipped = SceneGraph.open(out / "scene.usda")
     scored = [(shipped.get_energies(o["recon"]), o["stable"]) for o in d["objects"]]
@@ -178,7 +181,7 @@ def test_eval_of_reconstruction_reports_every_key(recon: tuple[Path, _pipeline.P
     # 4 input frames, the novel view, the mesh view, the speed-vs-accuracy chart, cost and F1 charts
     assert page.count("data:image/png;base64,") >= 4 + 1 + 1 + 1 + 2
     assert "no render" not in page and "no mesh view" not in page and "Speed against accuracy" in page
-    assert "mug_1" in page and "Stable%" in page
+    assert "mug_1" in page and "Stable%" in page and "verdict (mujoco)" in page
     assert "hard fast (hard_ablation)" in page  # the older run of a preset is told apart from the current one
 
 

@@ -255,6 +255,7 @@ def write_report(path: str | os.PathLike[str], *, evaluation: dict[str, Any], sc
         f"<td>{f(o.get('f1_visible'), '.1f')}</td>"
         f"<td>{f(o['translation_m'], '.3f')}</td><td>{f(o['rotation_deg'], '.1f')}</td>"
         f"<td class={'ok' if o['stable'] else 'bad'}>{_verdict(o['stable'])}</td>"
+        f"<td class={'ok' if o.get('stable_cross_check') else 'bad'}>{_verdict(o.get('stable_cross_check'))}</td>"
         f"{_search_cells(scene, o['recon'])}</tr>"
         for o in rows
     )  # fmt: skip
@@ -292,7 +293,9 @@ pre{{background:#f6f6f6;padding:8px;display:inline-block;vertical-align:top;marg
 240 Hz; stable = moved &lt; 2 cm and turned &lt; 5&deg;.</p><table><tr><th>object</th><th>reconstructed</th>
 <th>parent (gt)</th><th>parent (recon)</th><th>Chamfer cm (complete)</th><th>F1 (complete)</th><th>F1 (seen)</th>
 <th>moved m</th><th>turned &deg;</th>
-<th>verdict</th><th>search: chosen shape</th><th>search: runner-up</th></tr>{table}</table>
+<th>verdict ({html.escape(str(p.get("solver") or "-"))})</th>
+<th>verdict ({html.escape(str(cross.get("solver", "-")))})</th>
+<th>search: chosen shape</th><th>search: runner-up</th></tr>{table}</table>
 <p>Search: the completion candidate the s2 search kept (lowest E_obs + E_stable + E_touch + E_pene; its
 E_stable is quasi-static, "search agrees" is how often the verdict above repeats it) beside the runner-up.</p>
 <h2>Speed against accuracy</h2><p>This run ("this run") beside the reference <code>holousd bench</code> runs

@@ -87,6 +87,12 @@ class ObjectRow:
     """How far its collider reaches outside its rendered mesh, cm (its record)."""
     penetration_cm: float | None = None
     """Its rendered mesh's deepest penetration into another node, cm (its record)."""
+    stable_cross_check: bool | None = None
+    """Its verdict in the cross-check solver (MuJoCo by default; None: missing, or no cross-check run)."""
+    translation_cross_check_m: float | None = None
+    """Its largest drift in the cross-check solver's verdict, metres."""
+    rotation_cross_check_deg: float | None = None
+    """Its largest rotation in the cross-check solver's verdict, degrees."""
 
 
 @dataclass(kw_only=True)
@@ -318,6 +324,7 @@ def evaluate_scene(recon: str | os.PathLike[str], gt: str | os.PathLike[str],
     render = _render_metrics(scene, gt_dir, config, notes)
 
     verdicts: dict[str, Any] = {}
+    second: dict[str, Any] = {}
     stable_pct: float | None = None
     cross: dict[str, Any] | None = None
     primary: str | None = None
@@ -378,6 +385,9 @@ def evaluate_scene(recon: str | os.PathLike[str], gt: str | os.PathLike[str],
             stable=verdict.stable if verdict else None, translation_m=verdict.translation_m if verdict else None,
             rotation_deg=verdict.rotation_deg if verdict else None, parent_gt=node.get("parent"),
             parent_recon=parent_recon,
+            stable_cross_check=second[name].stable if name in second else None,
+            translation_cross_check_m=second[name].translation_m if name in second else None,
+            rotation_cross_check_deg=second[name].rotation_deg if name in second else None,
             **_record_cm(scene, name),
         ))  # fmt: skip
 
