@@ -367,6 +367,7 @@ def evaluate_scene(recon: str | os.PathLike[str], gt: str | os.PathLike[str],
         metrics = report.per_object_complete.get(node["name"])
         seen = report.per_object.get(node["name"])
         verdict = verdicts.get(name) if name else None
+        crossed = second.get(name) if name else None
         parent_recon = None
         if name is not None:
             parent = scene.get_support(name)
@@ -385,9 +386,9 @@ def evaluate_scene(recon: str | os.PathLike[str], gt: str | os.PathLike[str],
             stable=verdict.stable if verdict else None, translation_m=verdict.translation_m if verdict else None,
             rotation_deg=verdict.rotation_deg if verdict else None, parent_gt=node.get("parent"),
             parent_recon=parent_recon,
-            stable_cross_check=second[name].stable if name in second else None,
-            translation_cross_check_m=second[name].translation_m if name in second else None,
-            rotation_cross_check_deg=second[name].rotation_deg if name in second else None,
+            stable_cross_check=crossed.stable if crossed else None,
+            translation_cross_check_m=crossed.translation_m if crossed else None,
+            rotation_cross_check_deg=crossed.rotation_deg if crossed else None,
             **_record_cm(scene, name),
         ))  # fmt: skip
 
