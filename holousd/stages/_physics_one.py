@@ -13,7 +13,8 @@ objects:
    below the highest point there that comes within ``bottom_band`` of the child's underside, and no deeper than
    the child can follow; no lower than the surface seen around the child, within ``top_depth`` of that point,
    where the child's underside is no lower: a top the fit dented under what hides it), inside the child's
-   footprint (1 cm wider) up to ``top_depth`` above that surface,
+   footprint (1 cm wider) up to ``top_depth`` above that surface (children side by side whose surfaces would lie
+   within ``top_snap`` of one another share one level: each is a plane the support's decomposition cuts along),
    and under the child's outline up to ``2 * top_depth`` above its bottom (a lump hidden under its overhang;
    above the flat surface, for a child fitted down through it);
    its dents under the child's footprint (not the centimetre beyond, which may be a neighbour's, cut flat
@@ -35,7 +36,10 @@ objects:
    thinnest axis, within the overlap's bounds (1 cm wider), as two real objects meet at one face.
 5. ``shape``: the convex hull of the mesh is the collider when it reaches at most ``hull_tolerance`` outside
    it (at most ``convexify``: the mesh and SDF then become the hull, a lumpy book or ball fitted on coarse
-   cells) and enters none of the objects around it; else a decomposition of that mesh
+   cells) and enters none of the objects around it; where it does enter one, the hull cut clear of them by planes
+   (the flat surface cut under what rests on it, else a separating plane ``clearance`` short of the neighbour)
+   that cut at most ``convexify`` into the mesh and a quarter of its volume: the mesh and SDF become that one part
+   (``convexify:cleared``); else a decomposition of that mesh
    (:func:`holousd.geometry.plane_decomposition`: plane cuts until every piece lies within ``hull_tolerance`` of its
    hull and no piece's hull enters the objects around it (their colliders once shaped, objects in name order), at most
    ``max_parts``; then, with at most ``reach_parts`` more, until no piece's hull, one that the budget left uncut
@@ -73,6 +77,7 @@ import numpy as np
 
 from holousd._errors import SceneError
 from holousd.geometry._contact import (
+    _solid,
     collider_reach,
     cut_by_plane,
     mass_properties,
@@ -82,6 +87,7 @@ from holousd.geometry._contact import (
     without_zero_area_faces,
 )
 from holousd.geometry._decompose import Decomposition, convexify, plane_decomposition
+from holousd.geometry._hulls import cut_plane
 from holousd.graph import RelationConfig, Relations, infer_relations
 from holousd.stages._physics_setup import (
     PHYSICS_LAYER,
@@ -135,6 +141,11 @@ class PhysicsSetupConfig:
     """Deepest flattening of the top of a support that others rest on, below its highest point, metres: a
     fitted top is a bumpy dome of facets (a centimetre or two on 160x120 captures); a child set on it rocks, and
     the collider's hulls bridge its dents above the rendered surface."""
+    top_snap: float = 0.003
+    """Children side by side on one support whose flat patches would lie within this height of one another, metres,
+    share one level (the patch cut first; within what the child can follow): every flat patch is a plane the
+    support's decomposition cuts along, and patches 0.1-0.5 mm apart sliced hard/touching_siblings' table top into
+    sheets that thin under its four books and boxes, on which MuJoCo threw one 19 cm."""
     clearance: float = 0.001
     """Gap left between an object's flat base and its support's surface, metres."""
     max_shift: float = 0.01
@@ -317,6 +328,16 @@ class _Body:
             sdf = replace(sdf, grid=values.reshape(sdf.grid.shape).astype(np.float32))
         return replace(self, mesh=MeshData(points=points, faces=faces), sdf=sdf,
                        edits=(*self.edits, f"{edit}:{1e6 * removed:.1f}cm3"), collider=None)  # fmt: skip
+
+    def as_convex(self, part: MeshData, edit: str) -> _Body:
+        """The body whose solid is the convex ``part`` (object coordinates); its SDF becomes the part's (the
+        plane distances of its hull: exact inside)."""
+        sdf = self.sdf
+        if sdf is not None:
+            inside_part = next(_part_distances(sdf, [(part.points, part.faces)]), None)
+            if inside_part is not None:
+                sdf = replace(sdf, grid=inside_part.reshape(sdf.grid.shape).astype(np.float32))
+        return replace(self, mesh=part, sdf=sdf, edits=(*self.edits, edit), collider=None)
 
     def plus_convex(self, parts: list[tuple[np.ndarray, np.ndarray]], mesh: MeshData, edit: str) -> _Body:
         """The body whose solid is ``mesh``, the union of its own convex ``parts`` (object coordinates) that
@@ -616,7 +637,8 @@ def _flatten_top(parent: _Body, children: list[_Body], config: PhysicsSetupConfi
     filled up to it, or where the support is open under the child, the surface carried over the opening
     (:func:`_filled_up_to`). A fitted top is a bumpy dome of facets, on which a child's flat base would rock; a
     wall or rim beside the child and a board above it stay (but for what of them lies within 1 cm of the
-    footprint, up to ``top_depth`` above its surface)."""
+    footprint, up to ``top_depth`` above its surface). Children whose patches would lie within ``top_snap`` of
+    one another share one level."""
     from scipy.spatial import ConvexHull, QhullError
 
     from holousd.physics import convex_hull
@@ -624,6 +646,7 @@ def _flatten_top(parent: _Body, children: list[_Body], config: PhysicsSetupConfi
     if not children:
         return parent
     body = parent
+    levels: list[float] = []  # the heights of the patches cut so far
     for child in children:
         hits = _hits_below(child, body.world(), config.relations.bottom_band)
         if len(hits) == 0:
@@ -649,6 +672,12 @@ def _flatten_top(parent: _Body, children: list[_Body], config: PhysicsSetupConfi
             underside = underside[np.isfinite(underside)]
             if len(underside) and around <= float(np.median(underside)) + config.clearance:
                 plane = around
+        # a sibling's patch as high, give or take top_snap: one level (no sheet between two planes for the hulls)
+        shared = [level for level in levels if abs(level - plane) <= config.top_snap
+                  and level >= bottom - config.max_shift / 2]  # fmt: skip
+        if shared:
+            plane = min(shared, key=lambda level: abs(level - plane))
+        levels.append(plane)
         lo = np.array([*(c[:, :2].min(axis=0) - 0.01), plane])
         # bumps in the footprint's corners up to top_depth above the flat surface go with it (a hull spanning
         # one and the flat surface bridged demo's bowl base 1.6 cm up); a wall beside keeps what stands higher
@@ -914,19 +943,99 @@ def _intrusion(part: tuple[np.ndarray, np.ndarray], mesh: MeshData, keep_out: tu
 def _collider(mesh: MeshData, config: PhysicsSetupConfig, planes: tuple = (), keep_out: tuple = (),
               extra_parts: int = 0) -> tuple[str, list[MeshData], float]:  # fmt: skip
     """The hull of the mesh when it stays within ``hull_tolerance`` of it (or within ``convexify``: the mesh then
-    becomes its hull) and enters none of the ``keep_out`` meshes (its neighbours and support, the mesh's frame),
-    else a decomposition of the mesh; with the chosen collider's reach outside the mesh, metres."""
+    becomes its hull) and enters none of the ``keep_out`` meshes (its neighbours and support, the mesh's frame);
+    where it does enter one, that hull cut clear of them by planes that cut at most ``convexify`` into the mesh
+    (kind ``"cleared"``: the mesh becomes it, see :func:`_cleared_hull`); else a decomposition of the mesh; with
+    the chosen collider's reach outside the mesh (the uncut hull's for ``"cleared"``), metres."""
     from holousd.physics import convex_hull
 
     hull = convex_hull(mesh.points, mesh.faces)
     reach = collider_reach([hull], (mesh.points, mesh.faces), seed=config.seed)
-    if reach <= max(config.hull_tolerance, config.convexify) and _intrusion(hull, mesh, keep_out) <= 1e-8:
-        return "hull", [MeshData(points=hull[0], faces=hull[1])], reach
+    if reach <= max(config.hull_tolerance, config.convexify):
+        if _intrusion(hull, mesh, keep_out) <= 1e-8:
+            return "hull", [MeshData(points=hull[0], faces=hull[1])], reach
+        surfaces = [(np.asarray(n, float), float(o)) for n, o, _ in planes]
+        cleared = _cleared_hull(hull, mesh, keep_out, config.convexify, config.clearance, surfaces)
+        if cleared is not None:
+            return "cleared", [MeshData(points=cleared[0], faces=cleared[1])], reach
     parts = _decompose(mesh, config, planes, keep_out, extra_parts)
     part_reach = collider_reach(parts, (mesh.points, mesh.faces), seed=config.seed) if parts else np.inf
     if part_reach >= reach:  # the decomposition does not follow the mesh better: the simpler collider
         return "hull", [MeshData(points=hull[0], faces=hull[1])], reach
     return "decomposition", [MeshData(points=p, faces=f) for p, f in parts], part_reach
+
+
+def _cleared_hull(hull: tuple[np.ndarray, np.ndarray], mesh: MeshData, keep_out: tuple, deepest: float,
+                  gap: float, surfaces: Sequence[tuple[np.ndarray, float]] = (), max_planes: int = 6,
+                  max_candidates: int = 64, max_loss: float = 0.25,
+                  ) -> tuple[np.ndarray, np.ndarray] | None:  # fmt: skip
+    """``hull`` (of ``mesh``) cut by planes until it enters none of the ``keep_out`` meshes (beyond the mesh's own
+    overlap with them), or None when that takes more than ``max_planes`` planes, a plane that cuts more than
+    ``deepest`` into the mesh, or more than ``max_loss`` of its volume in all. Each plane separates the hull from
+    one mesh it enters: one of the mesh's flat ``surfaces`` (``normal . x = offset``, object coordinates: where its
+    top was cut flat under what rests on it) that has that mesh on its far side, else ``gap`` short of that mesh one
+    of the separating directions of two convex solids (the hull's face normals, the other's reversed, the axes);
+    of those, of the ``max_candidates`` that cut least deep, the one that takes the least volume off the mesh. A
+    lumpy convex object under or beside another (a book fitted thick, its cover standing 6-10 mm over the patch cut
+    flat under the mug on it; a box beside its neighbour) keeps one convex part flush with its neighbours rather
+    than a decomposition of its lumps: hard/stack's book of 34 such parts slid 4 cm in MuJoCo under its mug and
+    both fell, where its one hull stood."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    points = np.asarray(mesh.points, float)
+    solid = _solid((mesh.points, mesh.faces))
+    if solid is None:
+        return None
+    volume = solid.volume()
+    flat = [(np.asarray(n, float) / np.linalg.norm(n), float(o) / np.linalg.norm(n)) for n, o in surfaces]
+    lost = 0.0  # volume the planes take off the mesh (each measured alone: an upper bound), m^3
+    for planes in range(max_planes + 1):
+        entered = next((k for k in keep_out if _intrusion(hull, mesh, (k,)) > 1e-8), None)
+        if entered is None:
+            return hull
+        if planes == max_planes:
+            return None
+        other = np.asarray(entered[0], float)
+        lo, hi = hull[0].min(axis=0) - deepest, hull[0].max(axis=0) + deepest
+        near = other[np.all((other >= lo) & (other <= hi), axis=1)]  # a large non-convex neighbour: the part near
+        near = near if len(near) >= 4 else other
+        beyond = [(n, o) for n, o in flat if float((near @ n).min()) >= o]
+        if beyond:
+            normals, offsets = np.array([n for n, _ in beyond]), np.array([o for _, o in beyond])
+        else:
+            directions = [_face_normals(hull), np.eye(3), -np.eye(3)]
+            try:
+                directions.append(-ConvexHull(near).equations[:, :3])  # outward unit normals of the other's hull
+            except (QhullError, ValueError):  # flat (a neighbour's face within reach): the hull's own and the axes
+                pass
+            normals = np.unique(np.round(np.concatenate(directions), 9), axis=0)
+            offsets = (near @ normals.T).min(axis=0) - gap  # the other stays on the far side of n . x = offset
+        depth = (points @ normals.T).max(axis=0) - offsets  # how deep into the mesh the plane cuts
+        shallow = np.flatnonzero(depth <= deepest)
+        if len(shallow) == 0:
+            return None
+        # the least volume off the mesh (the deepest cut alone would tilt a book's flat cover to spare a bump)
+        shallow = shallow[np.argsort(depth[shallow], kind="stable")[:max_candidates]]
+        removed = [0.0 if depth[i] <= 0 else volume - solid.trim_by_plane(
+            tuple(-normals[i]), float(-offsets[i])).volume() for i in shallow]  # fmt: skip
+        best = int(shallow[int(np.argmin(removed))])
+        lost += min(removed)
+        if lost > max_loss * volume:
+            return None
+        kept = cut_plane([hull], -normals[best], -offsets[best])
+        if len(kept) != 1:
+            return None
+        hull = kept[0]
+    return None
+
+
+def _face_normals(mesh: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """[F, 3] unit normals of a mesh's faces (as wound), degenerate faces left out."""
+    tri = np.asarray(mesh[0], float)[np.asarray(mesh[1], np.int64)]
+    normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    length = np.linalg.norm(normals, axis=1)
+    keep = length > 1e-12
+    return normals[keep] / length[keep, None]
 
 
 def _shaped(body: _Body, config: PhysicsSetupConfig, keep_out: list[tuple[np.ndarray, np.ndarray]] | None = None,
@@ -942,6 +1051,9 @@ def _shaped(body: _Body, config: PhysicsSetupConfig, keep_out: list[tuple[np.nda
     inverse = np.linalg.inv(body.pose.matrix())
     local = tuple((p @ inverse[:3, :3].T + inverse[:3, 3], f) for p, f in keep_out or [])
     kind, parts, reach = _collider(body.mesh, config, body.planes, local, extra_parts)
+    if kind == "cleared":  # the hull cut clear of its neighbours: it is the mesh too, what of the mesh lay past
+        hull = parts[0]  # its planes (bumps, at most convexify deep) cut off
+        return replace(body.as_convex(hull, f"convexify:cleared:{100 * reach:.1f}cm"), collider=("hull", parts, 0.0))
     if kind == "hull" and config.hull_tolerance < reach <= config.convexify:  # a lumpy convex object (a book,
         hull = parts[0]  # a ball fitted on coarse cells): its hull, one part, is both collider and mesh
         grown = body.plus_convex([(hull.points, hull.faces)], hull, f"convexify:hull:{100 * reach:.1f}cm")
