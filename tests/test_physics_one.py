@@ -240,8 +240,9 @@ def test_a_lumpy_convex_object_becomes_its_hull(tmp_path: Path) -> None:
 def test_a_lumpy_convex_object_under_another_becomes_its_hull_cut_clear_of_it(tmp_path: Path) -> None:
     """hard/stack's book had bumps on its cover beside the mug set on it: its hull bridged from them over the mug's
     base, so it became a decomposition of its lumps, 34 parts, and in MuJoCo slid 4 cm under the mug (both fell).
-    Its hull cut clear of the mug by a plane that takes at most hull_tolerance off the mesh is one part, and the
-    mesh becomes that part."""
+    Its hull cut clear of the mug by a level plane that cuts at most convexify into the mesh is one part, and the
+    mesh becomes that part. A top with a step under two children is not levelled so: that plane would cut under the
+    child on the step (a tilted one, bridging the step, tilted the top a degree)."""
     book = _union(_box((0, 0, 0), (0.2, 0.15, 0.03)), _box((0.01, 0.02, 0.03), (0.04, 0.13, 0.034)))  # a 4 mm lump
     mug = _box((0.1, 0.03, 0.031), (0.18, 0.12, 0.11))  # on the cover beside the lump, under the hull's slope
     scene = _scene(tmp_path, {"book": book, "mug": mug})
@@ -260,6 +261,15 @@ def test_a_lumpy_convex_object_under_another_becomes_its_hull_cut_clear_of_it(tm
     # (but for its base, cut flat 1 mm over the floor)
     assert mesh.volume <= trimesh.Trimesh(*book).convex_hull.volume
     assert records["mug"].penetration_m <= 1e-4
+    stepped = _union(_box((-0.3, -0.3, 0.0), (0.3, 0.3, 0.5)), _box((0.0, -0.3, 0.5), (0.3, 0.3, 0.505)))
+    (tmp_path / "step").mkdir()
+    scene = _scene(tmp_path / "step", {"table": stepped, "book": _box((-0.2, -0.1, 0.5005), (-0.02, 0.1, 0.53)),
+                                       "box": _box((0.02, -0.1, 0.5055), (0.2, 0.1, 0.6))})  # fmt: skip
+    records = _records(setup_physics(scene, PhysicsSetupConfig()))
+    assert not any(e.startswith("convexify:cleared") for e in records["table"].edits), records["table"]
+    assert "shift" not in records["box"].edits and _world(scene, "box")[:, 2].min() > 0.5055, records["box"]
+    top = trimesh.Trimesh(*_world_mesh(scene, "table"))
+    assert top.bounds[1][2] == pytest.approx(0.505, abs=1e-4)  # the step stands
 
 
 # ----------------------------------------------------------------------------------------------- negative controls
@@ -901,25 +911,6 @@ def test_a_support_is_flat_under_its_child_in_mesh_and_collider(tmp_path: Path) 
         assert abs(hits[:, 2].max() - 0.5) < 1e-3, rec["table"]
     book = _world(scene, "book")
     assert 0.5005 < book[:, 2].min() <= 0.502  # on it (the collider's cut lies half a millimetre above the surface)
-
-
-def test_children_side_by_side_share_one_level_and_the_support_has_no_sheet_between_two(tmp_path: Path) -> None:
-    """Each child's flat patch is a plane the support's decomposition cuts along, across the whole top: two patches
-    a millimetre apart left a sheet a millimetre thick, and on hard/touching_siblings' table (four patches within
-    1.5 mm: sheets of 0.1-0.5 mm under the books and boxes) MuJoCo threw a book 19 cm. Patches within top_snap of one
-    another are cut at one level."""
-    table = _union(_box((-0.3, -0.3, 0.0), (0.3, 0.3, 0.5)), _box((0.0, -0.3, 0.5), (0.3, 0.3, 0.5012)))  # a step
-    objects = {"table": table,
-               "book": _box((-0.2, -0.1, 0.5005), (-0.02, 0.1, 0.53)),  # on the lower half
-               "box": _box((0.02, -0.1, 0.5017), (0.2, 0.1, 0.6))}  # on the step, 1.2 mm higher  # fmt: skip
-    scene = _scene(tmp_path, objects)
-    rec = _records(setup_physics(scene, PhysicsSetupConfig()))
-    assert rec["book"].parent == "table" and rec["box"].parent == "table", rec
-    assert _world(scene, "book")[:, 2].min() == pytest.approx(_world(scene, "box")[:, 2].min(), abs=1e-6)
-    pose = scene.get_pose("table")
-    for part in scene.get_collider("table").parts:
-        hull = trimesh.convex.convex_hull(pose.apply(part.points))
-        assert min(np.ptp(hull.vertices @ n) for n in hull.face_normals) > 2e-3, hull.bounds
 
 
 def test_a_bump_under_a_childs_edge_is_cut_with_the_rest_of_its_patch(tmp_path: Path) -> None:

@@ -13,8 +13,7 @@ objects:
    below the highest point there that comes within ``bottom_band`` of the child's underside, and no deeper than
    the child can follow; no lower than the surface seen around the child, within ``top_depth`` of that point,
    where the child's underside is no lower: a top the fit dented under what hides it), inside the child's
-   footprint (1 cm wider) up to ``top_depth`` above that surface (children side by side whose surfaces would lie
-   within ``top_snap`` of one another share one level: each is a plane the support's decomposition cuts along),
+   footprint (1 cm wider) up to ``top_depth`` above that surface,
    and under the child's outline up to ``2 * top_depth`` above its bottom (a lump hidden under its overhang;
    above the flat surface, for a child fitted down through it);
    its dents under the child's footprint (not the centimetre beyond, which may be a neighbour's, cut flat
@@ -37,9 +36,10 @@ objects:
 5. ``shape``: the convex hull of the mesh is the collider when it reaches at most ``hull_tolerance`` outside
    it (at most ``convexify``: the mesh and SDF then become the hull, a lumpy book or ball fitted on coarse
    cells) and enters none of the objects around it; where it does enter one, the hull cut clear of them by planes
-   (the flat surface cut under what rests on it, else a separating plane ``clearance`` short of the neighbour)
-   that cut at most ``convexify`` into the mesh and a quarter of its volume: the mesh and SDF become that one part
-   (``convexify:cleared``); else a decomposition of that mesh
+   (against what rests on it the flat surface cut under it, else a level plane ``clearance`` under it, neither cutting
+   under another object resting there; against a neighbour beside it an upright separating plane ``clearance``
+   short of it) that cut at most ``convexify`` into the mesh and a quarter of its volume: the mesh and SDF become that
+   one part (``convexify:cleared``); else a decomposition of that mesh
    (:func:`holousd.geometry.plane_decomposition`: plane cuts until every piece lies within ``hull_tolerance`` of its
    hull and no piece's hull enters the objects around it (their colliders once shaped, objects in name order), at most
    ``max_parts``; then, with at most ``reach_parts`` more, until no piece's hull, one that the budget left uncut
@@ -141,11 +141,6 @@ class PhysicsSetupConfig:
     """Deepest flattening of the top of a support that others rest on, below its highest point, metres: a
     fitted top is a bumpy dome of facets (a centimetre or two on 160x120 captures); a child set on it rocks, and
     the collider's hulls bridge its dents above the rendered surface."""
-    top_snap: float = 0.003
-    """Children side by side on one support whose flat patches would lie within this height of one another, metres,
-    share one level (the patch cut first; within what the child can follow): every flat patch is a plane the
-    support's decomposition cuts along, and patches 0.1-0.5 mm apart sliced hard/touching_siblings' table top into
-    sheets that thin under its four books and boxes, on which MuJoCo threw one 19 cm."""
     clearance: float = 0.001
     """Gap left between an object's flat base and its support's surface, metres."""
     max_shift: float = 0.01
@@ -637,8 +632,7 @@ def _flatten_top(parent: _Body, children: list[_Body], config: PhysicsSetupConfi
     filled up to it, or where the support is open under the child, the surface carried over the opening
     (:func:`_filled_up_to`). A fitted top is a bumpy dome of facets, on which a child's flat base would rock; a
     wall or rim beside the child and a board above it stay (but for what of them lies within 1 cm of the
-    footprint, up to ``top_depth`` above its surface). Children whose patches would lie within ``top_snap`` of
-    one another share one level."""
+    footprint, up to ``top_depth`` above its surface)."""
     from scipy.spatial import ConvexHull, QhullError
 
     from holousd.physics import convex_hull
@@ -646,7 +640,6 @@ def _flatten_top(parent: _Body, children: list[_Body], config: PhysicsSetupConfi
     if not children:
         return parent
     body = parent
-    levels: list[float] = []  # the heights of the patches cut so far
     for child in children:
         hits = _hits_below(child, body.world(), config.relations.bottom_band)
         if len(hits) == 0:
@@ -672,12 +665,6 @@ def _flatten_top(parent: _Body, children: list[_Body], config: PhysicsSetupConfi
             underside = underside[np.isfinite(underside)]
             if len(underside) and around <= float(np.median(underside)) + config.clearance:
                 plane = around
-        # a sibling's patch as high, give or take top_snap: one level (no sheet between two planes for the hulls)
-        shared = [level for level in levels if abs(level - plane) <= config.top_snap
-                  and level >= bottom - config.max_shift / 2]  # fmt: skip
-        if shared:
-            plane = min(shared, key=lambda level: abs(level - plane))
-        levels.append(plane)
         lo = np.array([*(c[:, :2].min(axis=0) - 0.01), plane])
         # bumps in the footprint's corners up to top_depth above the flat surface go with it (a hull spanning
         # one and the flat surface bridged demo's bowl base 1.6 cm up); a wall beside keeps what stands higher
@@ -967,15 +954,19 @@ def _collider(mesh: MeshData, config: PhysicsSetupConfig, planes: tuple = (), ke
 
 def _cleared_hull(hull: tuple[np.ndarray, np.ndarray], mesh: MeshData, keep_out: tuple, deepest: float,
                   gap: float, surfaces: Sequence[tuple[np.ndarray, float]] = (), max_planes: int = 6,
-                  max_candidates: int = 64, max_loss: float = 0.25,
+                  max_candidates: int = 64, max_loss: float = 0.25, max_tilt: float = 0.1,
                   ) -> tuple[np.ndarray, np.ndarray] | None:  # fmt: skip
     """``hull`` (of ``mesh``) cut by planes until it enters none of the ``keep_out`` meshes (beyond the mesh's own
     overlap with them), or None when that takes more than ``max_planes`` planes, a plane that cuts more than
     ``deepest`` into the mesh, or more than ``max_loss`` of its volume in all. Each plane separates the hull from
     one mesh it enters: one of the mesh's flat ``surfaces`` (``normal . x = offset``, object coordinates: where its
-    top was cut flat under what rests on it) that has that mesh on its far side, else ``gap`` short of that mesh one
-    of the separating directions of two convex solids (the hull's face normals, the other's reversed, the axes);
-    of those, of the ``max_candidates`` that cut least deep, the one that takes the least volume off the mesh. A
+    top was cut flat under what rests on it) that has that mesh on its far side, else ``gap`` short of that mesh:
+    for a mesh resting on its top (its bottom at most ``deepest`` under the top), the level plane; for one beside
+    it, one of the upright separating directions (``|n_z| <= max_tilt``) of two convex solids (the hull's face
+    normals, the other's reversed, the axes); of those, of the ``max_candidates`` that cut least deep, the one that
+    takes the least volume off the mesh. A plane against what rests on the top cuts nothing under the others
+    resting there (a sibling on a higher step keeps its step); a tilted plane bridging such a step, chosen as the
+    cheapest, had tilted the whole top a degree. A
     lumpy convex object under or beside another (a book fitted thick, its cover standing 6-10 mm over the patch cut
     flat under the mug on it; a box beside its neighbour) keeps one convex part flush with its neighbours rather
     than a decomposition of its lumps: hard/stack's book of 34 such parts slid 4 cm in MuJoCo under its mug and
@@ -988,6 +979,8 @@ def _cleared_hull(hull: tuple[np.ndarray, np.ndarray], mesh: MeshData, keep_out:
         return None
     volume = solid.volume()
     flat = [(np.asarray(n, float) / np.linalg.norm(n), float(o) / np.linalg.norm(n)) for n, o in surfaces]
+    top = float(points[:, 2].max())
+    resting = [(k, np.asarray(k[0], float)) for k in keep_out if float(np.asarray(k[0])[:, 2].min()) >= top - deepest]
     lost = 0.0  # volume the planes take off the mesh (each measured alone: an upper bound), m^3
     for planes in range(max_planes + 1):
         entered = next((k for k in keep_out if _intrusion(hull, mesh, (k,)) > 1e-8), None)
@@ -1000,17 +993,24 @@ def _cleared_hull(hull: tuple[np.ndarray, np.ndarray], mesh: MeshData, keep_out:
         near = other[np.all((other >= lo) & (other <= hi), axis=1)]  # a large non-convex neighbour: the part near
         near = near if len(near) >= 4 else other
         beyond = [(n, o) for n, o in flat if float((near @ n).min()) >= o]
+        on_top = float(other[:, 2].min()) >= top - deepest
         if beyond:
             normals, offsets = np.array([n for n, _ in beyond]), np.array([o for _, o in beyond])
-        else:
+        elif on_top:  # resting on it, no surface cut flat under it: level, just under it (a tilt would tilt the top)
+            normals, offsets = np.array([[0.0, 0.0, 1.0]]), np.array([float(near[:, 2].min()) - gap])
+        else:  # beside it: upright planes only (a tilted one bridging a step would tilt the top too)
             directions = [_face_normals(hull), np.eye(3), -np.eye(3)]
             try:
                 directions.append(-ConvexHull(near).equations[:, :3])  # outward unit normals of the other's hull
             except (QhullError, ValueError):  # flat (a neighbour's face within reach): the hull's own and the axes
                 pass
             normals = np.unique(np.round(np.concatenate(directions), 9), axis=0)
+            normals = normals[np.abs(normals[:, 2]) <= max_tilt]
             offsets = (near @ normals.T).min(axis=0) - gap  # the other stays on the far side of n . x = offset
         depth = (points @ normals.T).max(axis=0) - offsets  # how deep into the mesh the plane cuts
+        if on_top:  # no cut under what else rests on the top, where that stands higher (a sibling on a step)
+            others = [points_of for k, points_of in resting if k is not entered]
+            depth[~_spared(solid, normals, offsets, others)] = np.inf
         shallow = np.flatnonzero(depth <= deepest)
         if len(shallow) == 0:
             return None
@@ -1027,6 +1027,28 @@ def _cleared_hull(hull: tuple[np.ndarray, np.ndarray], mesh: MeshData, keep_out:
             return None
         hull = kept[0]
     return None
+
+
+def _spared(solid, normals: np.ndarray, offsets: np.ndarray, resting: list[np.ndarray]) -> np.ndarray:  # noqa: ANN001
+    """[P] for each plane ``normal . x = offset``, whether it leaves whole what of ``solid`` (a manifold) lies under
+    each of the ``resting`` point sets (their footprints: x-y bounding boxes): nothing of it there past the plane."""
+    ok = np.ones(len(normals), bool)
+    for i, (n, o) in enumerate(zip(normals, offsets, strict=True)):
+        past = solid.trim_by_plane(tuple(float(v) for v in n), float(o) + 1e-4)  # what the plane would take off
+        for other in resting:
+            if past.is_empty():
+                break
+            lo, hi = other[:, :2].min(axis=0), other[:, :2].max(axis=0)
+            under = past
+            for axis in (0, 1):
+                for sign, bound in ((1.0, lo[axis]), (-1.0, hi[axis])):
+                    normal = [0.0, 0.0, 0.0]
+                    normal[axis] = sign
+                    under = under.trim_by_plane(tuple(normal), sign * float(bound))
+            if under.volume() > 1e-9:
+                ok[i] = False
+                break
+    return ok
 
 
 def _face_normals(mesh: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
