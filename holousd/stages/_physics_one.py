@@ -981,9 +981,10 @@ def _cleared_hull(hull: tuple[np.ndarray, np.ndarray], mesh: MeshData, keep_out:
     flat = [(np.asarray(n, float) / np.linalg.norm(n), float(o) / np.linalg.norm(n)) for n, o in surfaces]
     top = float(points[:, 2].max())
     resting = [(k, np.asarray(k[0], float)) for k in keep_out if float(np.asarray(k[0])[:, 2].min()) >= top - deepest]
+    own = [overlap((mesh.points, mesh.faces), k).volume_m3 for k in keep_out]  # the mesh's: the planes keep it
     lost = 0.0  # volume the planes take off the mesh (each measured alone: an upper bound), m^3
-    for planes in range(max_planes + 1):
-        entered = next((k for k in keep_out if _intrusion(hull, mesh, (k,)) > 1e-8), None)
+    for planes in range(max_planes + 1):  # (as _intrusion, each mesh's own overlap measured once, not per plane)
+        entered = next((k for k, v in zip(keep_out, own, strict=True) if overlap(hull, k).volume_m3 - v > 1e-8), None)
         if entered is None:
             return hull
         if planes == max_planes:
