@@ -211,29 +211,10 @@ def _components_of_split(piece: object, normal: np.ndarray, offset: float, min_v
     return _components(one, min_volume) + _components(other, min_volume)
 
 
-def _one_level(cuts: list[tuple], sheet: float) -> list[tuple]:
-    """``cuts`` with parallel planes less than ``sheet`` apart made one, at the highest of them, with all their
-    sides: two cuts that close slice what reaches above both into a sheet that thin (hard/touching_siblings' table
-    top, cut flat under four touching children at levels 0.1-0.5 mm apart, came out as sheets 0.13-0.5 mm thick
-    and MuJoCo threw a book off it). The hull over a lower surface of a group then stands as much higher than it
-    would under its own cut as the group spans."""
-    groups: list[list] = []  # [normal, lowest, highest, sides], in the order the cuts come
-    for normal, offset, *sides in cuts:
-        normal, offset, around = np.asarray(normal, float), float(offset), list(sides[0]) if sides and sides[0] else []
-        group = next((g for g in groups if float(g[0] @ normal) > 1.0 - 1e-9
-                      and g[1] - sheet < offset < g[2] + sheet), None)  # fmt: skip
-        if group is None:
-            groups.append([normal, offset, offset, around])
-        else:
-            group[1], group[2] = min(group[1], offset), max(group[2], offset)
-            group[3] += around
-    return [(normal, high, sides) for normal, _, high, sides in groups]
-
-
 def plane_decomposition(mesh: Mesh, *, tolerance: float = 0.003, max_parts: int = 32, offsets: int = 9,
                         cuts: list[tuple] | None = None, keep_out: list[Mesh] | None = None,
                         max_intrusion: float = 1e-8, keep_out_parts: int = 0, rim: float = 0.03,
-                        max_reach: float | None = None, reach_parts: int = 0, sheet: float = 0.0015,
+                        max_reach: float | None = None, reach_parts: int = 0,
                         ) -> Decomposition | None:  # fmt: skip
     """Cut a closed mesh into convex pieces by planes (see the module docstring).
 
@@ -251,8 +232,7 @@ def plane_decomposition(mesh: Mesh, *, tolerance: float = 0.003, max_parts: int 
             ``sides`` (planes ``(normal, offset)`` around the flat patch, normals outwards), what lies above the
             surface is also cut half a millimetre outside each side: the rim a patch cut into a bumpy top leaves
             around it is no ring whose hull spans the patch; what reaches higher than ``rim`` above the surface is
-            first cut there (a shelf's side panels and upper boards stand on its board's rim). Parallel cuts
-            less than ``sheet`` apart are made one, at the highest of them (see :func:`_one_level`).
+            first cut there (a shelf's side panels and upper boards stand on its board's rim).
         keep_out: Closed meshes (the mesh's frame) no piece's hull may enter: the neighbours and the support
             beside and under the object. A piece whose hull holds more than ``max_intrusion`` m^3 of them is cut
             before any other, whatever its concavity (a shelf's side and upper board as one piece: their hull
@@ -279,8 +259,7 @@ def plane_decomposition(mesh: Mesh, *, tolerance: float = 0.003, max_parts: int 
     min_volume = 1e-4 * float(solid.volume())
     solids = _components(solid, min_volume) or [solid]
     whole = len(solids)
-    for normal, offset, *sides in _one_level(cuts or [], sheet):  # half a millimetre off the surface: a cut on a
-        # face leaves a sheet
+    for normal, offset, *sides in cuts or []:  # half a millimetre off the surface: a cut on a face leaves a sheet
         split = []
         for piece in solids:
             above, below = piece.split_by_plane(tuple(float(v) for v in normal), float(offset) + 5e-4)
