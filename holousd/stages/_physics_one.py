@@ -994,13 +994,13 @@ def _cleared_hull(hull: tuple[np.ndarray, np.ndarray], mesh: MeshData, keep_out:
         near = other[np.all((other >= lo) & (other <= hi), axis=1)]  # a large non-convex neighbour: the part near
         near = near if len(near) >= 4 else other
         beyond = [(n, o) for n, o in flat if float((near @ n).min()) >= o]
-        on_top = float(other[:, 2].min()) >= top - deepest
+        on_top = any(k is entered for k, _ in resting)
         if beyond:
             normals, offsets = np.array([n for n, _ in beyond]), np.array([o for _, o in beyond])
         elif on_top:  # resting on it, no surface cut flat under it: level, just under it (a tilt would tilt the top)
             normals, offsets = np.array([[0.0, 0.0, 1.0]]), np.array([float(near[:, 2].min()) - gap])
         else:  # beside it: upright planes only (a tilted one bridging a step would tilt the top too)
-            directions = [_face_normals(hull), np.eye(3), -np.eye(3)]
+            directions = [_face_planes(hull)[0], np.eye(3), -np.eye(3)]
             try:
                 directions.append(-ConvexHull(near).equations[:, :3])  # outward unit normals of the other's hull
             except (QhullError, ValueError):  # flat (a neighbour's face within reach): the hull's own and the axes
@@ -1052,13 +1052,15 @@ def _spared(solid, normals: np.ndarray, offsets: np.ndarray, resting: list[np.nd
     return ok
 
 
-def _face_normals(mesh: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
-    """[F, 3] unit normals of a mesh's faces (as wound), degenerate faces left out."""
+def _face_planes(mesh: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """The planes ``normal . x = offset`` of a mesh's faces: [F, 3] unit normals (as wound) and [F] offsets,
+    degenerate faces left out."""
     tri = np.asarray(mesh[0], float)[np.asarray(mesh[1], np.int64)]
     normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     length = np.linalg.norm(normals, axis=1)
     keep = length > 1e-12
-    return normals[keep] / length[keep, None]
+    normals = normals[keep] / length[keep, None]
+    return normals, np.einsum("ij,ij->i", normals, tri[keep, 0])
 
 
 def _shaped(body: _Body, config: PhysicsSetupConfig, keep_out: list[tuple[np.ndarray, np.ndarray]] | None = None,
@@ -1239,12 +1241,7 @@ def _clipped_apart(a: _Body, j: int, b: _Body, k: int) -> tuple[_Body, _Body] | 
     p, q = _world_parts(a)[j], _world_parts(b)[k]
     options = []
     for which, cut, other, mesh in ((0, p, q, a.world()), (1, q, p, b.world())):
-        tri = other[0][other[1]]
-        normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-        length = np.linalg.norm(normals, axis=1)
-        keep = length > 1e-12
-        normals = normals[keep] / length[keep, None]
-        offsets = np.einsum("ij,ij->i", normals, tri[keep, 0])
+        normals, offsets = _face_planes(other)
         flip = normals @ other[0].mean(axis=0) > offsets  # outwards: the other part on the plane's inner side
         normals[flip], offsets[flip] = -normals[flip], -offsets[flip]
         planes = np.unique(np.round(np.column_stack([normals, offsets]), 6), axis=0)
