@@ -726,6 +726,51 @@ def test_inside_is_ray_parity_without_chance(monkeypatch: pytest.MonkeyPatch) ->
     assert np.array_equal(inside(ball, pts), inside(ball, pts))
 
 
+def test_inside_holds_on_a_grid_aligned_mesh_from_points_on_its_face_planes() -> None:
+    """The parity rays run within a degree of the axes (fast: thin ray boxes); points lying in the planes of an
+    axis-aligned solid's faces, inside and out, are still told apart."""
+    from holousd.geometry._contact import inside
+
+    ell = _union(_box((0.0, 0.0, 0.0), (0.4, 0.1, 0.1)), _box((0.0, 0.0, 0.1), (0.1, 0.1, 0.4)))
+    rng = np.random.default_rng(5)
+    planes = [np.array([0.0, 0.1, 0.4]), np.array([0.0, 0.1]), np.array([0.0, 0.1, 0.4])]
+    pts = rng.uniform([-0.05, -0.05, -0.05], [0.45, 0.15, 0.45], (3000, 3))
+    for axis in range(3):  # most points in one or two of the faces' planes (x = 0.1 and z = 0.1 run inside too)
+        snap = rng.random(len(pts)) < 0.4
+        pts[snap, axis] = rng.choice(planes[axis], snap.sum())
+    target = trimesh.Trimesh(*ell, process=False)
+    off = trimesh.proximity.closest_point(target, pts)[1] > 1e-4  # none on the surface itself
+    pts = pts[off]
+    truth = (np.all((pts > 0) & (pts < [0.4, 0.1, 0.1]), axis=1)
+             | np.all((pts > [0, 0, 0.1 - 1e-9]) & (pts < [0.1, 0.1, 0.4]), axis=1))  # fmt: skip
+    assert len(pts) > 1000 and 0.05 < truth.mean() < 0.9
+    np.testing.assert_array_equal(inside(target, pts), truth)
+
+
+def test_plane_distances_in_blocks_are_the_whole_product() -> None:
+    from scipy.spatial import ConvexHull
+
+    from holousd.stages._physics_one import _max_plane_distance
+
+    rng = np.random.default_rng(2)
+    planes = ConvexHull(rng.normal(size=(60, 3))).equations
+    pts = rng.uniform(-2, 2, (70001, 3))
+    np.testing.assert_array_equal(_max_plane_distance(pts, planes, chunk=4096),
+                                  (pts @ planes[:, :3].T + planes[:, 3]).max(axis=1))
+
+
+def test_the_solid_of_a_mesh_is_built_once_for_its_content() -> None:
+    from holousd.geometry._contact import _solid
+
+    box = _box((0.0, 0.0, 0.0), (0.2, 0.1, 0.1))
+    first = _solid(box)
+    assert _solid((box[0].copy(), box[1].copy())) is first  # the same content: the same solid
+    moved = _solid((box[0] + [0.0, 0.0, 0.5], box[1]))
+    assert moved is not first and abs(moved.volume() - first.volume()) < 1e-12
+    assert np.asarray(moved.bounding_box())[2] > 0.45  # noqa: PLR2004 - lower z of the moved box
+    assert _solid((box[0], box[1][:0])) is None
+
+
 def _turned(mesh: tuple[np.ndarray, np.ndarray], degrees: float) -> tuple[np.ndarray, np.ndarray]:
     c, s = np.cos(np.radians(degrees)), np.sin(np.radians(degrees))
     return mesh[0] @ np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]).T, mesh[1]

@@ -357,7 +357,20 @@ def _part_distances(sdf: SdfField, parts: list[tuple[np.ndarray, np.ndarray]]) -
             planes = ConvexHull(p).equations  # [H, 4]: n . x + d <= 0 inside
         except (QhullError, ValueError):
             continue
-        yield (grid @ planes[:, :3].T + planes[:, 3]).max(axis=1)
+        yield _max_plane_distance(grid, planes)
+
+
+def _max_plane_distance(points: np.ndarray, planes: np.ndarray, chunk: int = 32768) -> np.ndarray:
+    """[N] the largest of the signed distances of ``points`` [N, 3] to ``planes`` [H, 4] (``n . x + d``), in
+    blocks of ``chunk`` points: the whole [N, H] matrix at once (a table's 720 000 samples against a hull of 200
+    faces: 1.1 GB) cost more in memory traffic than in arithmetic."""
+    out = np.empty(len(points))
+    normals, offsets = planes[:, :3].T, planes[:, 3]
+    for start in range(0, len(points), chunk):
+        block = points[start : start + chunk] @ normals
+        block += offsets
+        out[start : start + chunk] = block.max(axis=1)
+    return out
 
 
 def _grid_points(sdf: SdfField) -> np.ndarray:
