@@ -467,6 +467,21 @@ def test_support_is_what_an_object_touches_not_what_its_overhang_is_above() -> N
     # control: a box hanging under a board's end, through nothing, is on the room
     under = {"board": _box((-0.4, -0.3, 0.68), (0.4, 0.3, 0.76)), "box": _box((0.45, -0.1, 0.3), (0.6, 0.1, 0.5))}
     assert infer_relations(under).support["box"] == BACKGROUND
+    # bench_04 (fast): a chair's visual hull stands 1.2 cm over the floor and reaches 1 cm into the foot of the
+    # table beside it; 2 of its 64 contact rays met the foot and none counted the floor, so it was put on the
+    # table (whose top the set-up then cut flat at the chair); with the floor's height known it is on the room
+    footed = _union(_box((0.45, -0.2, -0.02), (0.6, 0.6, 0.022)), _box((0.55, -0.2, 0.022), (0.6, 0.6, 0.74)))
+    chair = {"table": footed, "chair": _box((0.0, 0.0, 0.012), (0.5, 0.5, 0.9))}
+    assert infer_relations(chair, floor=0.0).support["chair"] == BACKGROUND
+    assert infer_relations(chair).support["chair"] == "table"  # control: the floor unknown, the foot is the support
+    # control: a book 3.5 cm over the floor, over a hole the fit left in a shelf's bottom board (the phone
+    # capture's hard/shelf), stays on the shelf: the floor is no support that far down
+    low_board = trimesh.boolean.difference([trimesh.Trimesh(*_box((-0.4, -0.15, -0.03), (0.4, 0.15, 0.04))),
+                                            trimesh.Trimesh(*_box((-0.05, -0.16, 0.0), (0.05, 0.16, 0.1)))],
+                                           engine="manifold")  # fmt: skip
+    shelved = {"shelf": (np.asarray(low_board.vertices), np.asarray(low_board.faces)),
+               "book": _box((-0.1, -0.08, 0.035), (0.1, 0.08, 0.06))}
+    assert infer_relations(shelved, floor=0.0).support["book"] == "shelf"
 
 
 _SUNK = {"keel": _union(_box((-0.1, -0.1, 0.761), (0.1, 0.1, 0.869)), _box((-0.03, -0.03, 0.649), (0.03, 0.03, 0.77))),
