@@ -683,6 +683,47 @@ def test_zero_area_faces_go_and_a_closed_mesh_stays_closed() -> None:
     assert merged.is_watertight and merged.volume == pytest.approx(1.0) and len(merged.faces) == 12
 
 
+def test_the_walls_around_a_cut_patch_leave_no_hull_over_it() -> None:
+    """A support's top cut flat under a child leaves a recess; the decomposition cuts what stands above the patch
+    half a millimetre either side of its sides, so no wall's layer on a side joins the next side's at a corner:
+    hard/stack's box kept such an L of two walls' layers, whose hull spanned the corner 1.2 cm over the recess
+    floor, and the book on it rested on that and tipped 6 deg. Control: cut outside the sides only, with the parts
+    spent (as they were there), a hull spans the recess."""
+    import holousd.geometry._decompose as decompose
+    from holousd.geometry import plane_decomposition
+
+    block = _box((0.0, 0.0, 0.0), (0.4, 0.4, 0.1))
+    recess = trimesh.boolean.difference([trimesh.Trimesh(*block), trimesh.Trimesh(*_box((0.1, 0.1, 0.088),
+                                                                                      (0.3, 0.3, 0.2)))],
+                                        engine="manifold")  # fmt: skip
+    mesh = (np.asarray(recess.vertices), np.asarray(recess.faces))
+    x, y, z = np.eye(3)
+    sides = [(x, 0.3), (-x, -0.1), (y, 0.3), (-y, -0.1)]
+    cuts = [(z, 0.088, sides)]
+    gx, gy = np.meshgrid(np.linspace(0.102, 0.298, 25), np.linspace(0.102, 0.298, 25))
+    over = np.column_stack([gx.ravel(), gy.ravel(), np.full(gx.size, 0.091)])  # 3 mm over the recess floor
+
+    def spanned(found: object) -> int:
+        return sum(int(trimesh.Trimesh(p, f).contains(over).sum()) for p, f in found.parts)
+
+    found = plane_decomposition(mesh, tolerance=0.003, max_parts=1, cuts=cuts)
+    assert spanned(found) == 0
+    rim = np.array([[0.05, 0.2, 0.05], [0.2, 0.35, 0.095], [0.2, 0.2, 0.04]])  # the rim and the floor stay covered
+    assert all(any(trimesh.Trimesh(p, f).contains(rim[i : i + 1])[0] for p, f in found.parts) for i in range(3))
+    outside_only = decompose._components_of_split
+
+    def outside(piece: object, normal: np.ndarray, offset: float, min_volume: float) -> list:
+        side = 0.3 if offset > 0.1 else -0.1  # the sides lie at x, y = 0.1 and 0.3 (offsets 0.3 and -0.1)
+        return outside_only(piece, normal, offset, min_volume) if offset > side else [piece]  # not the inward cut
+
+    old = plane_decomposition.__globals__["_components_of_split"]
+    try:
+        plane_decomposition.__globals__["_components_of_split"] = outside
+        assert spanned(plane_decomposition(mesh, tolerance=0.003, max_parts=1, cuts=cuts)) > 0
+    finally:
+        plane_decomposition.__globals__["_components_of_split"] = old
+
+
 def test_booleans_keep_double_precision_and_a_failed_mend_falls_back_to_edge_collapse(monkeypatch) -> None:
     """A table's carried-down legs came out open (3 unpaired edges) after the base cut: manifold3d was fed float32
     corners, which merged corners 0.1 micron apart into zero-area faces, and the face-by-face mend left a hole."""

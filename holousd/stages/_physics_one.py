@@ -362,8 +362,8 @@ def _part_distances(sdf: SdfField, parts: list[tuple[np.ndarray, np.ndarray]]) -
 
 def _max_plane_distance(points: np.ndarray, planes: np.ndarray, chunk: int = 32768) -> np.ndarray:
     """[N] the largest of the signed distances of ``points`` [N, 3] to ``planes`` [H, 4] (``n . x + d``), in
-    blocks of ``chunk`` points: the whole [N, H] matrix at once (a table's 720 000 samples against a hull of 200
-    faces: 1.1 GB) cost more in memory traffic than in arithmetic."""
+    blocks of ``chunk`` points: the whole [N, H] matrix at once (8 N H bytes: a gigabyte for 700 000 samples and
+    200 planes) cost more in memory traffic than in arithmetic."""
     out = np.empty(len(points))
     normals, offsets = planes[:, :3].T, planes[:, 3]
     for start in range(0, len(points), chunk):
