@@ -685,10 +685,10 @@ def test_zero_area_faces_go_and_a_closed_mesh_stays_closed() -> None:
 
 def test_the_walls_around_a_cut_patch_leave_no_hull_over_it() -> None:
     """A support's top cut flat under a child leaves a recess; the decomposition cuts what stands above the patch
-    half a millimetre either side of its sides, so no wall's layer on a side joins the next side's at a corner:
-    hard/stack's box kept such an L of two walls' layers, whose hull spanned the corner 1.2 cm over the recess
-    floor, and the book on it rested on that and tipped 6 deg. Control: cut outside the sides only, with the parts
-    spent (as they were there), a hull spans the recess."""
+    half a millimetre inside its sides. Cut outside them, it left a layer of each wall over the patch, the layers
+    meeting at the corners: hard/stack's box kept an L of two such layers, whose hull spanned the corner 1.2 cm
+    over the recess floor, and the book on it rested on that and tipped 6 deg. Control: cut outside, with the
+    parts spent (as they were there), a hull spans the recess."""
     import holousd.geometry._decompose as decompose
     from holousd.geometry import plane_decomposition
 
@@ -713,8 +713,7 @@ def test_the_walls_around_a_cut_patch_leave_no_hull_over_it() -> None:
     outside_only = decompose._components_of_split
 
     def outside(piece: object, normal: np.ndarray, offset: float, min_volume: float) -> list:
-        side = 0.3 if offset > 0.1 else -0.1  # the sides lie at x, y = 0.1 and 0.3 (offsets 0.3 and -0.1)
-        return outside_only(piece, normal, offset, min_volume) if offset > side else [piece]  # not the inward cut
+        return outside_only(piece, normal, offset + 1e-3, min_volume)  # half a millimetre outside, as it was
 
     old = plane_decomposition.__globals__["_components_of_split"]
     try:

@@ -230,9 +230,9 @@ def plane_decomposition(mesh: Mesh, *, tolerance: float = 0.003, max_parts: int 
             a millimetre along ``normal`` from ``normal . x = offset``: where something rests on the mesh, its flat
             support surface (normal pointing out of it), so that no hull bridges more than that above it. With
             ``sides`` (planes ``(normal, offset)`` around the flat patch, normals outwards), what lies above the
-            surface is also cut half a millimetre either side of each side: the rim a patch cut into a bumpy top
-            leaves around it is no ring whose hull spans the patch, and no wall's layer on a side joins the next
-            side's at a corner (an L whose hull spans the corner); what reaches higher than ``rim`` above the
+            surface is also cut half a millimetre inside each side: the rim a patch cut into a bumpy top leaves
+            around it is no ring whose hull spans the patch (cut outside the sides, it left a layer of each wall
+            over the patch, and the layers met at the corners); what reaches higher than ``rim`` above the
             surface is first cut there (a shelf's side panels and upper boards stand on its board's rim).
         keep_out: Closed meshes (the mesh's frame) no piece's hull may enter: the neighbours and the support
             beside and under the object. A piece whose hull holds more than ``max_intrusion`` m^3 of them is cut
@@ -272,10 +272,10 @@ def plane_decomposition(mesh: Mesh, *, tolerance: float = 0.003, max_parts: int 
                     upper, lower = p.split_by_plane(tuple(float(v) for v in normal), float(offset) + rim)
                     tall += _components(upper, min_volume)
                     over += _components(lower, min_volume)
-                for side, at in sides[0]:  # half a millimetre either side: the layer of a wall on the side is
-                    for offset in (5e-4, -5e-4):  # its own piece (two sides' layers meet at a corner: one piece, an
-                        over = [part for p in over  # L whose hull spanned the corner over the surface, 1.2 cm up)
-                                for part in _components_of_split(p, side, at + offset, min_volume)]  # fmt: skip
+                for side, at in sides[0]:  # half a millimetre inside: a cut outside left a layer of the wall on
+                    # each side over the patch, the layers one piece meeting at the corners, whose hull spanned the
+                    # patch (hard/stack's box: 1.2 cm over it); inside, the walls keep their whole thickness
+                    over = [part for p in over for part in _components_of_split(p, side, at - 5e-4, min_volume)]
             split += tall + over + _components(below, min_volume)
         solids = split or solids
     blocked = []
