@@ -683,7 +683,7 @@ def test_zero_area_faces_go_and_a_closed_mesh_stays_closed() -> None:
     assert merged.is_watertight and merged.volume == pytest.approx(1.0) and len(merged.faces) == 12
 
 
-def test_the_walls_around_a_cut_patch_leave_no_hull_over_it() -> None:
+def test_the_walls_around_a_cut_patch_leave_no_hull_over_it(monkeypatch: pytest.MonkeyPatch) -> None:
     """A support's top cut flat under a child leaves a recess; the decomposition cuts what stands above the patch
     half a millimetre inside its sides. Cut outside them, it left a layer of each wall over the patch, the layers
     meeting at the corners: hard/stack's box kept an L of two such layers, whose hull spanned the corner 1.2 cm
@@ -715,12 +715,8 @@ def test_the_walls_around_a_cut_patch_leave_no_hull_over_it() -> None:
     def outside(piece: object, normal: np.ndarray, offset: float, min_volume: float) -> list:
         return outside_only(piece, normal, offset + 1e-3, min_volume)  # half a millimetre outside, as it was
 
-    old = plane_decomposition.__globals__["_components_of_split"]
-    try:
-        plane_decomposition.__globals__["_components_of_split"] = outside
-        assert spanned(plane_decomposition(mesh, tolerance=0.003, max_parts=1, cuts=cuts)) > 0
-    finally:
-        plane_decomposition.__globals__["_components_of_split"] = old
+    monkeypatch.setattr(decompose, "_components_of_split", outside)
+    assert spanned(plane_decomposition(mesh, tolerance=0.003, max_parts=1, cuts=cuts)) > 0
 
 
 def test_booleans_keep_double_precision_and_a_failed_mend_falls_back_to_edge_collapse(monkeypatch) -> None:

@@ -29,16 +29,28 @@ __all__ = [
 Mesh = tuple[np.ndarray, np.ndarray]
 
 
+def _by_content(cache: dict, points: np.ndarray, faces: np.ndarray, build, keep: int):  # noqa: ANN001, ANN201
+    """What ``build()`` makes of a mesh, made once for the same ``points`` and ``faces`` (by content: a mesh is
+    often computed anew for each call) and kept in ``cache``, the ``keep`` most recently used."""
+    import hashlib
+
+    key = hashlib.blake2b(repr((points.shape, faces.shape)).encode() + points.tobytes() + faces.tobytes(),
+                          digest_size=16).digest()  # fmt: skip
+    found = cache.pop(key) if key in cache else build()
+    cache[key] = found  # most recent last
+    while len(cache) > keep:
+        del cache[next(iter(cache))]
+    return found
+
+
 _SOLIDS: dict[bytes, object] = {}
 
 
 def _solid(mesh: Mesh):  # noqa: ANN202 - manifold3d.Manifold | None
     """The manifold3d solid of a closed mesh, None when it is not one. The same solid for the same points and
-    faces (by content; solids are immutable): the set-up tests the same pairs of meshes for overlap pass after
-    pass, and building a fitted table's solid costs some 20 ms (hard/thin: 552 builds, 13 of its 180 s). The last
-    32 are kept."""
-    import hashlib
-
+    faces (:func:`_by_content`; solids are immutable): the set-up tests the same pairs of meshes for overlap pass
+    after pass, and building a fitted table's solid costs some 20 ms (hard/thin: 552 builds, 13 of its 180 s). The
+    last 32 are kept."""
     import manifold3d
 
     points, faces = mesh
@@ -48,18 +60,12 @@ def _solid(mesh: Mesh):  # noqa: ANN202 - manifold3d.Manifold | None
     # with two coincident corners has no area
     points = np.array(points, np.float64, order="C")
     faces = np.array(faces, np.uint64, order="C")
-    key = hashlib.blake2b(repr((points.shape, faces.shape)).encode() + points.tobytes() + faces.tobytes(),
-                          digest_size=16).digest()  # fmt: skip
-    if key in _SOLIDS:
-        solid = _SOLIDS.pop(key)
-    else:
+
+    def build():  # noqa: ANN202
         solid = manifold3d.Manifold(manifold3d.Mesh64(vert_properties=points, tri_verts=faces))
-        if solid.status() != manifold3d.Error.NoError or solid.is_empty():
-            solid = None
-    _SOLIDS[key] = solid  # most recent last
-    while len(_SOLIDS) > 32:
-        del _SOLIDS[next(iter(_SOLIDS))]
-    return solid
+        return None if solid.status() != manifold3d.Error.NoError or solid.is_empty() else solid
+
+    return _by_content(_SOLIDS, points, faces, build, 32)
 
 
 def _mesh(solid) -> Mesh:  # noqa: ANN001

@@ -77,6 +77,7 @@ import numpy as np
 
 from holousd._errors import SceneError
 from holousd.geometry._contact import (
+    _by_content,
     _solid,
     collider_reach,
     cut_by_plane,
@@ -438,21 +439,12 @@ def _ray_target(mesh: tuple[np.ndarray, np.ndarray]):  # noqa: ANN202 - a trimes
     """A ray intersector of ``mesh``, the same one for the same points and faces (by content: a body's world mesh
     is computed anew at each call): its triangle tree is built once, not at each of the set-up's ray casts (some
     2400 on bench_00, whose set-up spent 22 s of its 264 building triangle trees). The last 16 are kept."""
-    import hashlib
-
     from trimesh.ray.ray_triangle import RayMeshIntersector
 
     from holousd.graph._relations import _trimesh
 
     points, faces = np.ascontiguousarray(mesh[0], np.float64), np.ascontiguousarray(mesh[1], np.int64)
-    key = hashlib.blake2b(repr(points.shape).encode() + points.tobytes() + faces.tobytes(), digest_size=16).digest()
-    found = _RAY_TARGETS.pop(key, None)
-    if found is None:
-        found = RayMeshIntersector(_trimesh((points, faces)))
-    _RAY_TARGETS[key] = found  # most recent last
-    while len(_RAY_TARGETS) > 16:
-        del _RAY_TARGETS[next(iter(_RAY_TARGETS))]
-    return found
+    return _by_content(_RAY_TARGETS, points, faces, lambda: RayMeshIntersector(_trimesh((points, faces))), 16)
 
 
 def _first_hits_down(mesh: tuple[np.ndarray, np.ndarray], origins: np.ndarray,
