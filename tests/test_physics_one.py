@@ -442,7 +442,7 @@ def test_support_is_what_an_object_touches_not_what_its_overhang_is_above() -> N
     # a box over a hole the fit left in a shelf's middle board, wider than the box (bench_02, fast: its rays fell
     # 35 cm to the bottom board, none under its footprint met anything within max_gap, and it was put on the room):
     # the board around its footprint, at its bottom's height, is its support; control: with the board's remnants
-    # 5 cm lower than the box, it is not
+    # 6 cm lower (over max_gap under the box), it is not
     for drop, parent in ((0.0, "shelf"), (0.06, BACKGROUND)):
         boards = _union(_box((-0.4, -0.15, 0.0), (0.4, 0.15, 0.03)), _box((-0.41, -0.15, 0.0), (-0.4, 0.15, 0.6)),
                         _box((0.4, -0.15, 0.0), (0.41, 0.15, 0.6)))  # fmt: skip

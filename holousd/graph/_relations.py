@@ -322,8 +322,8 @@ def _ring(points: np.ndarray, width: float, count: int) -> np.ndarray:
 
     try:
         corners = points[ConvexHull(points).vertices]  # counter-clockwise
-    except QhullError:  # a degenerate outline (a line): its box
-        lo, hi = points.min(axis=0), points.max(axis=0)
+    except QhullError:  # a degenerate outline (a point, a line): its box, a tenth of a millimetre wider
+        lo, hi = points.min(axis=0) - 1e-4, points.max(axis=0) + 1e-4
         corners = np.array([lo, [hi[0], lo[1]], hi, [lo[0], hi[1]]])
     edges = np.roll(corners, -1, axis=0) - corners
     length = np.linalg.norm(edges, axis=1)

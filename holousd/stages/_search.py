@@ -125,7 +125,9 @@ class SearchConfig:
     and on the phone's hard/thin four visual hulls, one with a mask IoU of 0.09 (the fit's: 0.77). On clean
     captures no chosen candidate comes within half of it (hard/fast: at most +0.15). None: no limit."""
     revisit: bool = True
-    """``tree``: try the parent's other candidates when none of a child's stands."""
+    """``tree``: try the parent's other candidates when none of a child's stands (on the parent's chosen shape, nor
+    on its top as the set-up will leave it: every candidate E_obs keeps is checked so when the lowest total does not
+    stand, also for ``settle_beyond``)."""
     settle_beyond: float = 1.0
     """``tree``: the lowest total of a child whose centre of mass lies more than this outside its contacts on
     the parent's chosen shape, cm (E_stable above 1 + this), gives way to the lowest total of those that stand on
@@ -142,11 +144,12 @@ class SearchConfig:
     the hole lies this far below the child's bottom, metres (half the set-up's ``max_shift``)."""
     support_flatten: float = 0.015
     """A revisit replaces a parent's shape only when no candidate of the child stands on the parent as the
-    physics set-up will leave its top: flat under the child where it lies within this of its highest point
-    there, metres (the set-up's ``top_depth``; :func:`holousd.physics.static_stability`'s ``flatten``); the set-up
-    makes a child stand that the fitted bumps tip. Without it, the demo's bowl (its centre of mass 1 mm outside
-    its contacts on an 18 deg facet of the shelf's board) had the shelf swapped for its visual hull, 21 cm wider
-    into the corner nobody saw (the shelf's F1 94 -> 73). E_stable itself stays measured on the fitted shape:
+    physics set-up will leave its top (the same check chooses among a child's candidates, ``settle_beyond``):
+    flat under the child where it lies within this of its highest point there, metres (the set-up's ``top_depth``;
+    :func:`holousd.physics.static_stability`'s ``flatten``); the set-up makes a child stand that the fitted bumps
+    tip. Without it, the demo's bowl (its centre of mass 1 mm outside its contacts on an 18 deg facet of the shelf's
+    board) had the shelf swapped for its visual hull, 21 cm wider into the corner nobody saw (the shelf's F1 94 ->
+    73). E_stable itself stays measured on the fitted shape:
     scored on the flattened top, hard/fast lost four objects to 5-10 deg tilts (98 -> 90% stable)."""
     provenance: str = "s2_search"
     """Writer name recorded on the nodes the stage changes."""
@@ -388,9 +391,10 @@ def search(scene: SceneGraph, obs, config: SearchConfig | None = None,  # noqa: 
                 choices.append(choice)
                 if config.progress and log is not None:
                     b = choice.best
-                    log(f"search [{len(choices)}/{len(names)}] {name}: {b.label} (total {b.total:.2f}, "
-                        f"{'stands' if b.stable == 0 else 'does not stand'}) of {len(scores)} in "
-                        f"{choice.wall_s:.1f} s")  # fmt: skip
+                    verdict = ("stands" if b.stable == 0 else "stands once set up"
+                               if choice.chosen in (settled or ()) else "does not stand")  # fmt: skip
+                    log(f"search [{len(choices)}/{len(names)}] {name}: {b.label} (total {b.total:.2f}, {verdict}) "
+                        f"of {len(scores)} in {choice.wall_s:.1f} s")
     for choice in choices:
         cand = candidates[choice.name][choice.chosen][0]
         if cand.proposer != "stage1":
