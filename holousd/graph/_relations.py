@@ -264,6 +264,16 @@ def _votes_under_footprint(name: str, mesh: Mesh, names: list[str], intersectors
     low = points[points[:, 2] <= bottom + config.max_gap]
     low = low[evenly_spaced(len(low), config.max_rays)]
     origins = low + np.array([0.0, 0.0, config.ray_start])
+    owner = _first_upward_below(origins, name, bottom, names, intersectors, bounds, tms, config, floor)
+    return _counted(owner, config.footprint_share * len(origins))
+
+
+def _first_upward_below(origins: np.ndarray, name: str, bottom: float, names: list[str], intersectors: dict,
+                        bounds: dict, tms: dict, config: RelationConfig, floor: float | None,
+                        ) -> np.ndarray:  # fmt: skip
+    """[K] per ray cast straight down from ``origins`` [K, 3], the object (not ``name``; lower than its
+    ``bottom``) whose upward face it meets first, at most ``max_gap`` below ``bottom`` and not the floor's
+    (``contact_band`` above ``floor``); ``""`` for none."""
     directions = np.tile([0.0, 0.0, -1.0], (len(origins), 1))
     best = np.full(len(origins), -np.inf)  # [K] height of the highest upward face met
     owner = np.full(len(origins), "", dtype=object)
@@ -278,7 +288,7 @@ def _votes_under_footprint(name: str, mesh: Mesh, names: list[str], intersectors
         if floor is not None:  # the floor's, not the object's (see infer_relations)
             ok &= locations[:, 2] > floor + config.contact_band
         _keep_highest(best, owner, ray_index[ok], locations[ok, 2], other)
-    return _counted(owner, config.footprint_share * len(origins))
+    return owner
 
 
 def _votes_sunk_into(name: str, mesh: Mesh, names: list[str], intersectors: dict, bounds: dict, tms: dict,
@@ -349,20 +359,7 @@ def _votes_around_footprint(name: str, mesh: Mesh, names: list[str], intersector
     low = points[points[:, 2] <= bottom + config.max_gap]
     around = _ring(low[:, :2], config.ring, 4 * config.max_rays)
     origins = np.column_stack([around, np.full(len(around), bottom + config.ray_start)])
-    directions = np.tile([0.0, 0.0, -1.0], (len(origins), 1))
-    best = np.full(len(origins), -np.inf)
-    owner = np.full(len(origins), "", dtype=object)
-    for other in names:
-        lo, hi = bounds[other]
-        if other == name or lo[2] >= bottom - 1e-6 or hi[2] < bottom - config.max_gap:
-            continue
-        locations, ray_index, tri = intersectors[other].intersects_location(origins, directions)
-        if len(ray_index) == 0:
-            continue
-        ok = (tms[other].face_normals[tri, 2] > 0.0) & (locations[:, 2] >= bottom - config.max_gap)
-        if floor is not None:  # the floor's, not the object's (see infer_relations)
-            ok &= locations[:, 2] > floor + config.contact_band
-        _keep_highest(best, owner, ray_index[ok], locations[ok, 2], other)
+    owner = _first_upward_below(origins, name, bottom, names, intersectors, bounds, tms, config, floor)
     return _counted(owner, config.ring_share * len(origins))
 
 
