@@ -390,6 +390,23 @@ def test_a_small_overlap_is_cut_when_it_is_deep_and_left_when_it_only_touches(tm
     assert not any(edit.startswith("cut:neighbour") for r in rec.values() for edit in r.edits)
 
 
+def test_a_neighbour_through_a_board_is_taken_out_of_the_board(tmp_path: Path) -> None:
+    """A box fitted down through a shelf's bottom board to the floor (the phone capture of hard/shelf): the centres
+    of both lie above the board's middle, so the cut at the middle left the board's upper half inside the box; the
+    box cannot lose it (it would fall apart), so the board loses the box's volume and keeps the rest."""
+    board = _box((-0.3, 0.0, 0.06), (0.3, 0.3, 0.08))
+    shelf = _union(board, _box((-0.34, 0.0, 0.0), (-0.3, 0.3, 1.2)), _box((0.3, 0.0, 0.0), (0.34, 0.3, 1.2)))
+    box = _box((-0.1, 0.05, 0.0), (0.1, 0.25, 0.25))
+    scene = _scene(tmp_path, {"shelf": shelf, "box": box})
+    rec = _records(setup_physics(scene, PhysicsSetupConfig()))
+    shelf_mesh, box_mesh = _world_mesh(scene, "shelf"), _world_mesh(scene, "box")
+    assert overlap(shelf_mesh, box_mesh).volume_m3 < 1e-9 and rec["box"].penetration_m < 1e-3
+    assert "cut:neighbour:box" in rec["shelf"].edits and not any("neighbour" in e for e in rec["box"].edits)
+    assert trimesh.Trimesh(*box_mesh).volume == pytest.approx(0.2 * 0.2 * 0.249, rel=1e-3)  # its base cut 1 mm up
+    inside = trimesh.Trimesh(*shelf_mesh).contains([[0.0, 0.15, 0.075], [0.2, 0.15, 0.075], [-0.2, 0.15, 0.065]])
+    assert list(inside) == [False, True, True]
+
+
 def test_overlap_depth_and_cuts_of_turned_and_split_objects() -> None:
     turn = trimesh.transformations.rotation_matrix(np.radians(45.0), [0, 0, 1])
     a = trimesh.creation.box(extents=[0.4, 0.4, 0.4])
@@ -1154,10 +1171,15 @@ def test_colliders_still_overlapping_are_clipped_apart_and_the_mesh_follows() ->
     assert "clip:collider:book" in out["box"].edits and out["book"].edits == ()  # the box's part lost least
     assert b[0][:, 0].min() == pytest.approx(0.1002, abs=1e-6)  # 0.2 mm off the book's face
     assert np.allclose(out["box"].mesh.points, box[0])  # no mesh lay in the piece cut off
-    # an overlap deeper than hull_tolerance is the meshes' business: left, and recorded
+    # a part may reach max_reach (2 cm) past its mesh: one 1 cm into the book is clipped as well (the phone
+    # capture of hard/shelf: a part of the box 1.5 cm into one of the shelf's, their meshes apart, and the box
+    # was kicked at the first step); an overlap deeper than that is the meshes' business: left, and recorded
     deep = {"book": body("book", book, book), "box": body("box", box, _box((0.09, 0.0, 0.0), (0.2, 0.2, 0.1)))}
-    kept = _unclasped(deep, PhysicsSetupConfig())
-    assert _penetration("box", kept, []) == pytest.approx(0.01, abs=2e-4) and kept["box"].edits == ()
+    clipped = _unclasped(deep, PhysicsSetupConfig())
+    assert _penetration("box", clipped, []) == 0.0 and "clip:collider:book" in clipped["box"].edits
+    deeper = {"book": body("book", book, book), "box": body("box", box, _box((0.07, 0.0, 0.0), (0.2, 0.2, 0.1)))}
+    kept = _unclasped(deeper, PhysicsSetupConfig())
+    assert _penetration("box", kept, []) == pytest.approx(0.03, abs=2e-4) and kept["box"].edits == ()
 
 
 def test_a_top_dented_under_its_child_is_cut_flat_at_the_surface_seen_around_it(tmp_path: Path) -> None:
