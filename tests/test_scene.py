@@ -89,7 +89,7 @@ def _full_scene(path: Path) -> tuple[SceneGraph, dict]:
             angular_damping=0.25,
         ),  # fmt: skip
         "collider": Collider(approximation="convexDecomposition", parts=[CUBE, CUBE]),
-        "energies": Energies(stable=0.01, touch=0.002, penetration=1e-6, candidate=2),
+        "energies": Energies(stable=1.5, touch=0.002, penetration=1e-6, candidate=2, stands_once_set_up=True),
     }
     scene.set_mesh("crate", values["mesh"])
     scene.set_sdf("crate", values["sdf"])
@@ -143,7 +143,7 @@ def _check_full_scene(scene: SceneGraph, values: dict) -> None:
     energies, want_e = scene.get_energies("crate"), values["energies"]
     for attr in ("stable", "touch", "penetration"):  # float32 in the schema
         assert getattr(energies, attr) == pytest.approx(getattr(want_e, attr), rel=1e-6), attr
-    assert energies.candidate == want_e.candidate
+    assert energies.candidate == want_e.candidate and energies.stands_once_set_up and energies.stands
     assert scene.get_energies("lid") is None
     info = scene.node_info("crate")
     assert (info.role, info.instance_id, info.observed_fraction) == ("object", 3, pytest.approx(0.6))

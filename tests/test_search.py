@@ -236,7 +236,9 @@ def test_tree_search_records_every_candidate_and_keeps_the_lowest_total(
         assert e is not None and e.solver == _search.SOLVER and len(e.candidates) == len(e.totals) >= 2
         assert e.candidates[0].startswith("stage1#")  # the fitted shape is always a candidate
         live = [t for t in e.totals if math.isfinite(t)]
-        assert live and e.total == pytest.approx(min(live), rel=1e-6) or choice.revisited
+        assert live and e.total == pytest.approx(min(live), rel=1e-6) or choice.revisited or choice.stands_once_set_up
+        assert e.stands_once_set_up == choice.stands_once_set_up and e.stands == (choice.best.stable == 0.0
+                                                                                 or choice.stands_once_set_up)
         assert scene.get_support(choice.name) == choice.parent
         if not choice.best.proposer == "stage1":  # the chosen shape is the scene's mesh now
             changed += 1
@@ -282,3 +284,5 @@ def test_energies_name_the_chosen_candidate_and_the_runner_up_that_e_obs_kept() 
                      "box#0"], totals=[math.inf, math.inf])  # fmt: skip
     assert alone.chosen == "stage1#0" and alone.runner_up() is None
     assert Energies(stable=0.0, touch=0.0, penetration=0.0).chosen is None
+    # the search's verdict: E_stable 0, or chosen as standing on the parent's top once that is set up
+    assert e.stands and not replace(e, stable=2.5).stands and replace(e, stable=2.5, stands_once_set_up=True).stands

@@ -164,7 +164,8 @@ def _search_cells(scene: Any, name: str | None) -> str:
     energies = scene.get_energies(name) if name is not None and name in scene.objects() else None
     if energies is None or energies.chosen is None:
         return "<td>&ndash;</td><td>&ndash;</td>"
-    stands = "stands" if energies.stable == 0.0 else "falls"
+    stands = ("stands" if energies.stable == 0.0 else "stands once set up" if energies.stands_once_set_up
+              else "falls")  # fmt: skip
     runner = energies.runner_up()
     other = f"{html.escape(runner[0])} ({runner[1]:.2f})" if runner else "none (the others rejected by E_obs)"
     total = f"{energies.total:.2f}" if energies.total >= 0 else "every candidate rejected by E_obs: kept as fitted"

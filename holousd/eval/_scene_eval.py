@@ -431,13 +431,14 @@ def _record_cm(scene: Any, name: str | None) -> dict[str, float | None]:
 
 
 def _search_agreement(scene: Any, verdicts: dict[str, Any]) -> float | None:
-    """Of the objects the s2 search scored (``HoloEnergyAPI``), the share whose search verdict (E_stable 0:
-    stands) the primary solver's protocol verdict on the shipped scene repeats, %; None without either."""
+    """Of the objects the s2 search scored (``HoloEnergyAPI``), the share whose search verdict (E_stable 0, or
+    chosen as standing once its parent is set up: stands) the primary solver's protocol verdict on the shipped
+    scene repeats, %; None without either."""
     same = []
     for name, verdict in verdicts.items():
         energies = scene.get_energies(name) if name in scene.objects() else None
         if energies is not None and energies.chosen is not None:
-            same.append((energies.stable == 0.0) == verdict.stable)
+            same.append(energies.stands == verdict.stable)
     return 100.0 * sum(same) / len(same) if same else None
 
 

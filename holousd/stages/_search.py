@@ -201,6 +201,9 @@ class ObjectChoice:
     revisited: bool = False
     """The choice was made by a revisit: a parent's, changed when one of its children had no candidate that
     stands; that child's, the lowest total among its candidates that stand on the parent's new choice."""
+    stands_once_set_up: bool = False
+    """The chosen candidate does not stand on the parent's chosen shape but does on its top as the physics set-up
+    leaves it (see ``SearchConfig.settle_beyond``)."""
 
     @property
     def best(self) -> CandidateScore:
@@ -384,6 +387,7 @@ def search(scene: SceneGraph, obs, config: SearchConfig | None = None,  # noqa: 
                 choice = ObjectChoice(name=name, parent=parent, scores=scores, chosen=chosen, wall_s=0.0)
                 if tree and config.revisit and settled == []:
                     _revisit(name, choice, found, by_name[parent], candidates[parent], relations, placed, scorer)
+                choice.stands_once_set_up = choice.best.stable > 0 and choice.chosen in (settled or ())
                 placed[name] = found[choice.chosen][1]
                 candidates[name] = found
                 choice.wall_s = worker_s + time.perf_counter() - t0
@@ -391,8 +395,8 @@ def search(scene: SceneGraph, obs, config: SearchConfig | None = None,  # noqa: 
                 choices.append(choice)
                 if config.progress and log is not None:
                     b = choice.best
-                    verdict = ("stands" if b.stable == 0 else "stands once set up"
-                               if choice.chosen in (settled or ()) else "does not stand")  # fmt: skip
+                    verdict = ("stands" if b.stable == 0 else "stands once set up" if choice.stands_once_set_up
+                               else "does not stand")  # fmt: skip
                     log(f"search [{len(choices)}/{len(names)}] {name}: {b.label} (total {b.total:.2f}, {verdict}) "
                         f"of {len(scores)} in {choice.wall_s:.1f} s")
     for choice in choices:
@@ -406,7 +410,7 @@ def search(scene: SceneGraph, obs, config: SearchConfig | None = None,  # noqa: 
             stable=b.stable, touch=b.touch_cm / 100.0, penetration=b.pene_cm3 * 1e-6, candidate=choice.chosen,
             observation=b.observation, total=b.total if math.isfinite(b.total) else -1.0,
             candidates=[s.label for s in choice.scores], totals=[s.total for s in choice.scores],
-            solver=SOLVER))  # fmt: skip
+            solver=SOLVER, stands_once_set_up=choice.stands_once_set_up))  # fmt: skip
         scene.set_support(choice.name, choice.parent)
     scene.save()
     return SearchResult(scene=scene, mode=config.mode, choices=choices, wall_s=time.perf_counter() - start)

@@ -78,7 +78,8 @@ def _search_lines(energies: dict) -> list[str]:  # name -> Energies
         runner_text = f"{runner[0]} {runner[1]:.2f}" if runner else "none left (the others rejected by E_obs)"
         total = f"total {e.total:.2f}" if e.total >= 0 else "kept as fitted, E_obs rejected every candidate"
         lines.append(f"  {name}: {e.chosen} {total} (E_obs {e.observation:.2f}, "
-                     f"E_stable {e.stable:.2f}, touch {100 * e.touch:.1f} cm, pene {1e6 * e.penetration:.1f} cm^3)"
+                     f"E_stable {e.stable:.2f}{' (stands once set up)' if e.stands_once_set_up else ''}, "
+                     f"touch {100 * e.touch:.1f} cm, pene {1e6 * e.penetration:.1f} cm^3)"
                      f"; runner-up {runner_text}; {len(e.candidates)} candidates")  # fmt: skip
     return lines
 

@@ -1109,6 +1109,7 @@ class SceneGraph:
         prim.GetAttribute("holo:energy:candidates").Set(Vt.StringArray(list(energies.candidates)))
         prim.GetAttribute("holo:energy:totals").Set(Vt.FloatArray([float(v) for v in energies.totals]))
         prim.GetAttribute("holo:energy:solver").Set(str(energies.solver))
+        prim.GetAttribute("holo:energy:standsOnceSetUp").Set(bool(energies.stands_once_set_up))
         self._stamp(prim)
 
     def get_energies(self, name: str) -> Energies | None:
@@ -1126,6 +1127,7 @@ class SceneGraph:
             candidates=list(prim.GetAttribute("holo:energy:candidates").Get() or []),
             totals=[float(v) for v in (prim.GetAttribute("holo:energy:totals").Get() or [])],
             solver=str(prim.GetAttribute("holo:energy:solver").Get()),
+            stands_once_set_up=bool(prim.GetAttribute("holo:energy:standsOnceSetUp").Get()),
         )
 
     # ------------------------------------------------------------------ cameras

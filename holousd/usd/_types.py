@@ -298,6 +298,14 @@ class Energies:
     """Weighted total of each candidate (inf: rejected by E_obs)."""
     solver: str = ""
     """How E_stable was measured."""
+    stands_once_set_up: bool = False
+    """The chosen candidate does not stand on the parent's shape as chosen (``stable`` > 0) but does on the
+    parent's top as the physics set-up leaves it (see ``SearchConfig.settle_beyond``)."""
+
+    @property
+    def stands(self) -> bool:
+        """The search's verdict: the chosen candidate stands (E_stable 0, or it stands once the parent is set up)."""
+        return self.stable == 0.0 or self.stands_once_set_up
 
     @property
     def chosen(self) -> str | None:
