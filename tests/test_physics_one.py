@@ -1202,3 +1202,25 @@ def test_a_top_dented_under_its_child_is_cut_flat_at_the_surface_seen_around_it(
     assert _world(scene, "mug")[:, 2].min() > 0.7585  # its front is cut at the top
     assert rec["mug"].penetration_m < 1e-3
     assert all(xpbd and mujoco for xpbd, mujoco in _verdicts(scene).values())
+
+
+def test_a_top_dented_under_a_keel_is_cut_flat_at_the_surface_seen_around_it(tmp_path: Path) -> None:
+    """bench_05 (default preset): the mug was fitted with a keel 1.5 cm under its base, its shelf's board dented
+    2 cm under it. The top was cut flat at the keel's bottom, 1.8 cm under the board seen around the mug (more than
+    top_depth: the surface around was not looked for that high), its base cut on a part of the board's collider
+    left standing in its footprint's corner, and it tipped 17 deg. The surface seen around the child, up to the
+    child's own underside, is the top's level: the dent is filled, the keel cut off."""
+    dented = trimesh.Trimesh(*_box((-0.3, -0.3, -0.005), (0.3, 0.3, 0.76))).difference(
+        trimesh.Trimesh(*_box((-0.05, -0.05, 0.74), (0.05, 0.05, 0.8))), engine="manifold")
+    mug = _union(_box((-0.04, -0.04, 0.761), (0.04, 0.04, 0.86)), _box((-0.015, -0.015, 0.744), (0.015, 0.015, 0.77)))
+    scene = _scene(tmp_path, {"box": (np.asarray(dented.vertices), np.asarray(dented.faces)), "mug": mug})
+    rec = _records(setup_physics(scene, PhysicsSetupConfig()))
+    assert rec["mug"].parent == "box", rec["mug"]
+    xs, ys = np.meshgrid(np.linspace(-0.039, 0.039, 9), np.linspace(-0.039, 0.039, 9))
+    origins = np.column_stack([xs.ravel(), ys.ravel(), np.full(xs.size, 1.0)])
+    top = trimesh.Trimesh(_world(scene, "box"), scene.get_mesh("box").faces, process=False)
+    hits, rays, _ = top.ray.intersects_location(origins, np.tile([0.0, 0.0, -1.0], (len(origins), 1)),
+                                                multiple_hits=False)  # fmt: skip
+    assert len(rays) == len(origins) and hits[:, 2].min() > 0.7585, np.round(hits[:, 2], 4)  # the dent is filled
+    assert _world(scene, "mug")[:, 2].min() > 0.7585  # the keel is cut at the top
+    assert rec["mug"].penetration_m < 1e-3 and np.linalg.norm(rec["mug"].settled_m) < 1e-3

@@ -664,11 +664,15 @@ def _flatten_top(parent: _Body, children: list[_Body], config: PhysicsSetupConfi
         # it dented there as often as domed (bench_02's box was fitted 1.2 cm low under the mug on it; the top was
         # cut flat in the dent, the mug's front, fitted down into it, became its base with the centre of mass 2 cm
         # outside, and it tipped); a child standing in a recess, lower than the rim around it, stays on its floor
-        around = _level_around(c, body.world(), plane, config.top_depth)
-        if around > plane:
-            underside = _underside(child, _outline_grid(c))
-            underside = underside[np.isfinite(underside)]
-            if len(underside) and around <= float(np.median(underside)) + config.clearance:
+        underside = _underside(child, _outline_grid(c))
+        underside = underside[np.isfinite(underside)]
+        if len(underside):
+            # up to the child's underside: a child fitted with a keel under a base resting on the top seen
+            # around it (bench_05's mug, default preset: its keel 1.5 cm under its base, the surface seen around
+            # 1.8 cm over the keel's bottom) stands on that surface, not on the keel's bottom
+            level = float(np.median(underside)) + config.clearance
+            around = _level_around(c, body.world(), plane, config.top_depth, upto=level)
+            if plane < around <= level:
                 plane = around
         lo = np.array([*(c[:, :2].min(axis=0) - 0.01), plane])
         # bumps in the footprint's corners up to top_depth above the flat surface go with it (a hull spanning
@@ -703,11 +707,11 @@ def _flatten_top(parent: _Body, children: list[_Body], config: PhysicsSetupConfi
 
 
 def _level_around(points: np.ndarray, support: tuple[np.ndarray, np.ndarray], plane: float, depth: float,
-                  spacing: float = 0.01, share: float = 0.25) -> float:
+                  spacing: float = 0.01, share: float = 0.25, upto: float = -np.inf) -> float:
     """The height of ``support``'s surface (a world mesh) seen around a child (its world ``points``), near
     ``plane``: the median of the first hits of rays cast down on two rectangles 1.5 and 2.5 cm outside the
-    child's footprint, every ``spacing``, of those that land within ``depth`` of it, when at least ``share`` of
-    the rays do (past the support's edge or on a wall they do not); -inf else."""
+    child's footprint, every ``spacing``, of those that land within ``depth`` of it (or between it and ``upto``),
+    when at least ``share`` of the rays do (past the support's edge or on a wall they do not); -inf else."""
     lo, hi = points[:, :2].min(axis=0), points[:, :2].max(axis=0)
     rings = []
     for out in (0.015, 0.025):
@@ -717,8 +721,9 @@ def _level_around(points: np.ndarray, support: tuple[np.ndarray, np.ndarray], pl
         rings += [np.column_stack([xs, np.full(nx, y)]) for y in (a[1], b[1])]
         rings += [np.column_stack([np.full(ny - 2, x), ys[1:-1]]) for x in (a[0], b[0])]
     ring = np.concatenate(rings)
-    hits, _ = _first_hits_down(support, np.column_stack([ring, np.full(len(ring), plane + depth + 0.01)]))
-    level = hits[np.abs(hits[:, 2] - plane) <= depth, 2] if len(hits) else np.zeros(0)
+    top = max(plane + depth, upto)
+    hits, _ = _first_hits_down(support, np.column_stack([ring, np.full(len(ring), top + 0.01)]))
+    level = hits[(hits[:, 2] >= plane - depth) & (hits[:, 2] <= top), 2] if len(hits) else np.zeros(0)
     return float(np.median(level)) if len(level) >= share * len(ring) else -np.inf
 
 
