@@ -498,7 +498,9 @@ def _rest(bodies: dict[str, _Body], relations: Relations, room: tuple[np.ndarray
             sunk = _sunk_height(body, surface, band)
             if sunk is not None and sunk > max(heights, default=-np.inf) + band:
                 heights.append(sunk)
-        if not heights:
+        if not heights:  # nothing under it (over a hole the fit left): it stays, out of its support's solid
+            if support_parts:
+                out[name] = _out_of_support(body, support_parts, out[parent].world(), config)
             continue
         height = max(heights)  # on the support's mesh, and on its collider where that stands higher
         points = body.world()[0]
@@ -542,14 +544,23 @@ def _rest(bodies: dict[str, _Body], relations: Relations, room: tuple[np.ndarray
                 body = extended.cut(up, base, "cut:base")
                 if not _closed(_drop_degenerate(body.mesh)):  # the base cut left what cannot be mended: as seen
                     body = unextended
-        if support_parts:  # what of the support's collider still lies inside the child
-            body = body.minus_convex(support_parts, "cut:parent")
-            # and of its mesh: a sliver of it the decomposition dropped (under 1e-4 of its volume) is no part of
-            # the collider (the phone demo's shelf kept 2.8 cm^3 of a fitted lump in its bottle's back, 5 cm deep)
-            body = body.minus_mesh(out[parent].world(), "cut:parent:mesh", min_keep=1.0 - config.max_separation_loss,
-                                   min_volume=config.min_overlap)  # fmt: skip
+        if support_parts:
+            body = _out_of_support(body, support_parts, out[parent].world(), config)
         out[name] = body
     return out
+
+
+def _out_of_support(body: _Body, support_parts: list[tuple[np.ndarray, np.ndarray]],
+                    support: tuple[np.ndarray, np.ndarray], config: PhysicsSetupConfig) -> _Body:  # fmt: skip
+    """The child without what of its support's collider (``support_parts``, world) still lies inside it, and
+    without what of the support's mesh (``support``, world) does: a sliver of it the decomposition dropped (under
+    1e-4 of its volume) is no part of the collider (the phone demo's shelf kept 2.8 cm^3 of a fitted lump in its
+    bottle's back, 5 cm deep). Also for a child with nothing under it (the phone capture of bench_02: a box over a
+    hole the fit left in its shelf's board kept a part 2.2 cm deep in one of the board's, was thrown at the first
+    step and knocked the table beside over)."""
+    body = body.minus_convex(support_parts, "cut:parent")
+    return body.minus_mesh(support, "cut:parent:mesh", min_keep=1.0 - config.max_separation_loss,
+                           min_volume=config.min_overlap)  # fmt: skip
 
 
 def _extend_down(body: _Body, target: float, reach: float, surface: float | None = None) -> _Body | None:
@@ -1223,34 +1234,46 @@ def _colliders_meet(a: _Body, b: _Body) -> bool:
 
 def _unclasped(bodies: dict[str, _Body], config: PhysicsSetupConfig) -> dict[str, _Body]:
     """Colliders that still overlap, at most as deep as a collider may reach outside its mesh (``hull_tolerance``,
-    or ``max_reach`` where that is more), clipped apart: of each pair of overlapping convex parts, one is cut by a
-    plane of the other's faces, 0.2 mm off it (a convex part cut by a plane stays convex), the one whose body's
-    mesh loses least (:func:`_clipped_apart`). Such overlaps are hulls reaching past their meshes into a neighbour
-    where its decomposition could not keep out; deeper ones are overlaps of the meshes, the mesh edits' business.
+    or ``max_reach`` where that is more; at any depth where the two meshes overlap by less than ``min_overlap``),
+    clipped apart: of each pair of overlapping convex parts, one is cut by a plane of the other's faces, 0.2 mm off
+    it (a convex part cut by a plane stays convex), the one whose body's mesh loses least (:func:`_clipped_apart`).
+    Such overlaps are hulls reaching past their meshes into a neighbour where its decomposition could not keep out;
+    deeper ones, where the meshes overlap, are the mesh edits' business.
     Newton's XPBD resolves an overlap at the first step as a velocity: hard/touching_siblings' box kept a hull
     1.1 mm into the book beside it, and the book was thrown 2 cm; on the phone capture of hard/shelf, a part of the
     box reaching 1.6 cm past its mesh overlapped a part of the shelf's bottom board 1.5 cm deep (their meshes
-    apart), and the box was kicked 4 mm and 1.3 deg at the first step."""
+    apart), and the box was kicked 4 mm and 1.3 deg at the first step; on the phone capture of bench_02, a box
+    over a hole in its shelf's board kept a part 2.03 cm into one of the board's (the board's mesh cut out of the
+    box's), was thrown at the first step and knocked the table beside it over."""
     out = dict(bodies)
     names = sorted(out)
     for i, a in enumerate(names):
         for b in names[i + 1:]:
             if not _colliders_meet(out[a], out[b]):
                 continue
+            limit = max(config.hull_tolerance, config.max_reach or 0.0)
+            apart = overlap(out[a].world(), out[b].world()).volume_m3 < config.min_overlap
+            deepest = np.inf if apart else limit
             for _ in range(32):  # each clip removes one overlap of a pair of parts
-                found = _worst_overlap(out[a], out[b], max(config.hull_tolerance, config.max_reach or 0.0))
+                found = _worst_overlap(out[a], out[b], deepest)
                 if found is None:
                     break
-                j, k = found
-                clipped = _clipped_apart(out[a], j, out[b], k)
+                j, k, depth = found
+                # deeper than a part may reach: only a clip that takes next to nothing of the mesh (a hull over a
+                # compartment, clipped at what stands in it, would take the shelf's bottom board with it)
+                clipped = _clipped_apart(out[a], j, out[b], k, max_share=np.inf if depth <= limit else 0.01)
                 if clipped is None:
+                    if depth > limit:  # that one stays: the others as deep as a part may reach
+                        deepest = limit
+                        continue
                     break
                 out[a], out[b] = clipped
     return out
 
 
-def _worst_overlap(a: _Body, b: _Body, deepest: float) -> tuple[int, int] | None:
-    """Indices of the pair of parts of ``a`` and ``b`` overlapping most (at most ``deepest``), or None."""
+def _worst_overlap(a: _Body, b: _Body, deepest: float) -> tuple[int, int, float] | None:
+    """Indices of the pair of parts of ``a`` and ``b`` overlapping most (at most ``deepest``) and how deep, or
+    None."""
     best, found = 0.0, None
     pa, pb = _world_parts(a), _world_parts(b)
     if not pa or not pb:
@@ -1260,7 +1283,7 @@ def _worst_overlap(a: _Body, b: _Body, deepest: float) -> tuple[int, int] | None
     for j, k in np.argwhere(~apart):  # row-major: the order of the loop over all pairs (ties go to the first)
         o = overlap(pa[j], pb[k])
         if o.volume_m3 > best and o.depth_m <= deepest:
-            best, found = o.volume_m3, (int(j), int(k))
+            best, found = o.volume_m3, (int(j), int(k), float(o.depth_m))
     return found
 
 
@@ -1270,15 +1293,16 @@ def _boxes(parts: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
     return np.array([(p.min(axis=0), p.max(axis=0)) if len(p) else empty for p, _ in parts], float).reshape(-1, 2, 3)
 
 
-def _clipped_apart(a: _Body, j: int, b: _Body, k: int) -> tuple[_Body, _Body] | None:
+def _clipped_apart(a: _Body, j: int, b: _Body, k: int, max_share: float = np.inf) -> tuple[_Body, _Body] | None:
     """``a``'s part ``j`` and ``b``'s part ``k`` no longer overlapping: the one cut (either part, by a plane of the
     other's faces) that takes the least of its body's mesh, then the least of the part; None when no cut
-    separates them."""
+    separates them, or none takes at most ``max_share`` of its body's mesh volume."""
     from holousd.physics import convex_hull
 
     p, q = _world_parts(a)[j], _world_parts(b)[k]
     options = []
     for which, cut, other, mesh in ((0, p, q, a.world()), (1, q, p, b.world())):
+        most = max_share * mass_properties(mesh, 1.0).volume_m3 if np.isfinite(max_share) else np.inf
         normals, offsets = _face_planes(other)
         flip = normals @ other[0].mean(axis=0) > offsets  # outwards: the other part on the plane's inner side
         normals[flip], offsets[flip] = -normals[flip], -offsets[flip]
@@ -1287,7 +1311,8 @@ def _clipped_apart(a: _Body, j: int, b: _Body, k: int) -> tuple[_Body, _Body] | 
             kept, removed = cut_by_plane(cut, n, d + 2e-4, min_keep=0.5)
             if removed > 0 and overlap(kept, other).volume_m3 == 0.0:
                 lost = overlap(mesh, cut_by_plane(cut, -n, -(d + 2e-4), min_keep=0.0)[0]).volume_m3
-                options.append((lost, removed, which, kept, n, d + 2e-4))
+                if lost <= most:
+                    options.append((lost, removed, which, kept, n, d + 2e-4))
     if not options:
         return None
     lost, _, which, kept, n, d = min(options, key=lambda o: o[:2])  # the rendered solid first: the hull reaching out
