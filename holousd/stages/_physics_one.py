@@ -670,10 +670,10 @@ def _flatten_top(parent: _Body, children: list[_Body], config: PhysicsSetupConfi
         # (half the largest move: its own base cut takes the rest)
         plane = max(float(np.percentile(hits[:, 2], 10)), highest - config.top_depth, bottom - config.max_shift / 2)
         c = child.world()[0]
-        # no lower than the surface seen around the child, where that lies within top_depth above and the child's
-        # underside, over most of its outline, no lower: the top under a child is hidden by it, and a fit leaves
-        # it dented there as often as domed (bench_02's box was fitted 1.2 cm low under the mug on it; the top was
-        # cut flat in the dent, the mug's front, fitted down into it, became its base with the centre of mass 2 cm
+        # no lower than the surface seen around the child, where that lies above the plane and no higher than the
+        # child's underside over most of its outline (its median): the top under a child is hidden by it, and a fit
+        # leaves it dented there as often as domed (bench_02's box was fitted 1.2 cm low under the mug on it; the top
+        # was cut flat in the dent, the mug's front, fitted down into it, became its base with the centre of mass 2 cm
         # outside, and it tipped); a child standing in a recess, lower than the rim around it, stays on its floor
         underside = _underside(child, _outline_grid(c))
         underside = underside[np.isfinite(underside)]
@@ -1233,18 +1233,18 @@ def _colliders_meet(a: _Body, b: _Body) -> bool:
 
 
 def _unclasped(bodies: dict[str, _Body], config: PhysicsSetupConfig) -> dict[str, _Body]:
-    """Colliders that still overlap, at most as deep as a collider may reach outside its mesh (``hull_tolerance``,
-    or ``max_reach`` where that is more; at any depth where the two meshes overlap by less than ``min_overlap``),
-    clipped apart: of each pair of overlapping convex parts, one is cut by a plane of the other's faces, 0.2 mm off
-    it (a convex part cut by a plane stays convex), the one whose body's mesh loses least (:func:`_clipped_apart`).
-    Such overlaps are hulls reaching past their meshes into a neighbour where its decomposition could not keep out;
-    deeper ones, where the meshes overlap, are the mesh edits' business.
-    Newton's XPBD resolves an overlap at the first step as a velocity: hard/touching_siblings' box kept a hull
-    1.1 mm into the book beside it, and the book was thrown 2 cm; on the phone capture of hard/shelf, a part of the
-    box reaching 1.6 cm past its mesh overlapped a part of the shelf's bottom board 1.5 cm deep (their meshes
-    apart), and the box was kicked 4 mm and 1.3 deg at the first step; on the phone capture of bench_02, a box
-    over a hole in its shelf's board kept a part 2.03 cm into one of the board's (the board's mesh cut out of the
-    box's), was thrown at the first step and knocked the table beside it over."""
+    """Colliders that still overlap, at most as deep as a collider may reach outside its mesh (``hull_tolerance``, or
+    ``max_reach`` where that is more; at any depth where the two meshes overlap by less than ``min_overlap`` and the
+    clip takes at most 1% of the clipped body's mesh), clipped apart: of each pair of overlapping convex parts, one
+    is cut by a plane of the other's faces, 0.2 mm off it (a convex part cut by a plane stays convex), the one whose
+    body's mesh loses least (:func:`_clipped_apart`). Such overlaps are hulls reaching past their meshes into a
+    neighbour where its decomposition could not keep out; deeper ones, where the meshes overlap, are the mesh edits'
+    business. Newton's XPBD resolves an overlap at the first step as a velocity: hard/touching_siblings' box kept a
+    hull 1.1 mm into the book beside it, and the book was thrown 2 cm; on the phone capture of hard/shelf, a part of
+    the box reaching 1.6 cm past its mesh overlapped a part of the shelf's bottom board 1.5 cm deep (their meshes
+    apart), and the box was kicked 4 mm and 1.3 deg at the first step; on the phone capture of bench_02, a box over
+    a hole in its shelf's board kept a part 2.03 cm into one of the board's (the board's mesh cut out of the box's),
+    was thrown at the first step and knocked the table beside it over."""
     out = dict(bodies)
     names = sorted(out)
     for i, a in enumerate(names):
