@@ -1212,23 +1212,27 @@ def test_colliders_still_overlapping_are_clipped_apart_and_the_mesh_follows() ->
     assert _penetration("box", kept, []) == pytest.approx(0.03, abs=2e-4) and kept["box"].edits == ()
 
 
+def _set_up_on_a_dented_top(tmp_path: Path, half: float, floor: float, mug: tuple[np.ndarray, np.ndarray]):  # noqa: ANN202
+    """A box whose top (0.76 m) is dented ``2 * half`` wide down to ``floor`` under ``mug``, set up: (scene, records,
+    (hits, rays) of rays cast down on the box's mesh over the mug's 8 cm footprint, rays cast)."""
+    dented = trimesh.Trimesh(*_box((-0.3, -0.3, -0.005), (0.3, 0.3, 0.76))).difference(
+        trimesh.Trimesh(*_box((-half, -half, floor), (half, half, 0.8))), engine="manifold")
+    scene = _scene(tmp_path, {"box": (np.asarray(dented.vertices), np.asarray(dented.faces)), "mug": mug})
+    rec = _records(setup_physics(scene, PhysicsSetupConfig()))
+    assert rec["mug"].parent == "box", rec["mug"]
+    grid = np.linspace(-0.039, 0.039, 9)
+    _, (on_mesh, _), cast = _down_onto(scene, "box", grid, grid, z=1.0)
+    return scene, rec, on_mesh, cast
+
+
 def test_a_top_dented_under_its_child_is_cut_flat_at_the_surface_seen_around_it(tmp_path: Path) -> None:
     """bench_02's box was fitted 1.2 cm low under the mug standing on it (no camera sees a top under what stands
     on it), and the mug's front 1.2 cm down into that dent; the top was cut flat in the dent, the front became
     the mug's base with its centre of mass 2 cm behind it, and it tipped. The top is cut flat no lower than the
     surface the cameras saw around the child: the dent is filled, the front cut at the top, and it stands."""
-    dented = trimesh.Trimesh(*_box((-0.3, -0.3, -0.005), (0.3, 0.3, 0.76))).difference(
-        trimesh.Trimesh(*_box((-0.06, -0.06, 0.748), (0.06, 0.06, 0.8))), engine="manifold")
     mug = _union(_box((-0.04, -0.04, 0.761), (0.04, 0.04, 0.86)), _box((-0.04, -0.04, 0.749), (0.04, -0.03, 0.77)))
-    scene = _scene(tmp_path, {"box": (np.asarray(dented.vertices), np.asarray(dented.faces)), "mug": mug})
-    rec = _records(setup_physics(scene, PhysicsSetupConfig()))
-    assert rec["mug"].parent == "box", rec["mug"]
-    xs, ys = np.meshgrid(np.linspace(-0.039, 0.039, 9), np.linspace(-0.039, 0.039, 9))
-    origins = np.column_stack([xs.ravel(), ys.ravel(), np.full(xs.size, 1.0)])
-    top = trimesh.Trimesh(_world(scene, "box"), scene.get_mesh("box").faces, process=False)
-    hits, rays, _ = top.ray.intersects_location(origins, np.tile([0.0, 0.0, -1.0], (len(origins), 1)),
-                                                multiple_hits=False)  # fmt: skip
-    assert len(rays) == len(origins) and hits[:, 2].min() > 0.7585, np.round(hits[:, 2], 4)  # the dent is filled
+    scene, rec, (hits, rays), cast = _set_up_on_a_dented_top(tmp_path, 0.06, 0.748, mug)
+    assert len(rays) == cast and hits[:, 2].min() > 0.7585, np.round(hits[:, 2], 4)  # the dent is filled
     assert _world(scene, "mug")[:, 2].min() > 0.7585  # its front is cut at the top
     assert rec["mug"].penetration_m < 1e-3
     assert all(xpbd and mujoco for xpbd, mujoco in _verdicts(scene).values())
@@ -1240,17 +1244,8 @@ def test_a_top_dented_under_a_keel_is_cut_flat_at_the_surface_seen_around_it(tmp
     top_depth: the surface around was not looked for that high), its base cut on a part of the board's collider
     left standing in its footprint's corner, and it tipped 17 deg. The surface seen around the child, up to the
     child's own underside, is the top's level: the dent is filled, the keel cut off."""
-    dented = trimesh.Trimesh(*_box((-0.3, -0.3, -0.005), (0.3, 0.3, 0.76))).difference(
-        trimesh.Trimesh(*_box((-0.05, -0.05, 0.74), (0.05, 0.05, 0.8))), engine="manifold")
     mug = _union(_box((-0.04, -0.04, 0.761), (0.04, 0.04, 0.86)), _box((-0.015, -0.015, 0.744), (0.015, 0.015, 0.77)))
-    scene = _scene(tmp_path, {"box": (np.asarray(dented.vertices), np.asarray(dented.faces)), "mug": mug})
-    rec = _records(setup_physics(scene, PhysicsSetupConfig()))
-    assert rec["mug"].parent == "box", rec["mug"]
-    xs, ys = np.meshgrid(np.linspace(-0.039, 0.039, 9), np.linspace(-0.039, 0.039, 9))
-    origins = np.column_stack([xs.ravel(), ys.ravel(), np.full(xs.size, 1.0)])
-    top = trimesh.Trimesh(_world(scene, "box"), scene.get_mesh("box").faces, process=False)
-    hits, rays, _ = top.ray.intersects_location(origins, np.tile([0.0, 0.0, -1.0], (len(origins), 1)),
-                                                multiple_hits=False)  # fmt: skip
-    assert len(rays) == len(origins) and hits[:, 2].min() > 0.7585, np.round(hits[:, 2], 4)  # the dent is filled
+    scene, rec, (hits, rays), cast = _set_up_on_a_dented_top(tmp_path, 0.05, 0.74, mug)
+    assert len(rays) == cast and hits[:, 2].min() > 0.7585, np.round(hits[:, 2], 4)  # the dent is filled
     assert _world(scene, "mug")[:, 2].min() > 0.7585  # the keel is cut at the top
     assert rec["mug"].penetration_m < 1e-3 and np.linalg.norm(rec["mug"].settled_m) < 1e-3
