@@ -1252,13 +1252,18 @@ def _unclasped(bodies: dict[str, _Body], config: PhysicsSetupConfig) -> dict[str
             if not _colliders_meet(out[a], out[b]):
                 continue
             limit = max(config.hull_tolerance, config.max_reach or 0.0)
-            apart = overlap(out[a].world(), out[b].world()).volume_m3 < config.min_overlap
-            deepest = np.inf if apart else limit
-            for _ in range(32):  # each clip removes one overlap of a pair of parts
+            meshes = (out[a].world(), out[b].world())  # as they were before any clip of this pair
+            deepest, clips = np.inf, 0
+            while clips < 32:  # each clip removes one overlap of a pair of parts
                 found = _worst_overlap(out[a], out[b], deepest)
                 if found is None:
                     break
                 j, k, depth = found
+                # the meshes' overlap (a boolean of both) only asked once a part overlaps deeper than a part may
+                # reach: where the meshes overlap, deeper is the mesh edits' business
+                if depth > limit and overlap(*meshes).volume_m3 >= config.min_overlap:
+                    deepest = limit
+                    continue
                 # deeper than a part may reach: only a clip that takes next to nothing of the mesh (a hull over a
                 # compartment, clipped at what stands in it, would take the shelf's bottom board with it)
                 clipped = _clipped_apart(out[a], j, out[b], k, max_share=np.inf if depth <= limit else 0.01)
@@ -1268,6 +1273,7 @@ def _unclasped(bodies: dict[str, _Body], config: PhysicsSetupConfig) -> dict[str
                         continue
                     break
                 out[a], out[b] = clipped
+                clips += 1
     return out
 
 
