@@ -8,7 +8,7 @@ import numpy as np
 
 from holousd.usd._types import MeshData
 
-__all__ = ["MeshingResult", "face_budget", "mesh_from_sdf"]
+__all__ = ["MeshingResult", "face_budget", "mesh_from_sdf", "meshed_only"]
 
 
 @dataclass(kw_only=True)
@@ -151,3 +151,38 @@ def _mesh_level_set(grid: np.ndarray, origin: np.ndarray, voxel_size: float,
             components=components,
         )
     return None
+
+
+def meshed_only(grid: np.ndarray, origin: np.ndarray, voxel_size: float, mesh: MeshData,
+                iso_level: float = 0.0) -> np.ndarray:  # fmt: skip
+    """``grid`` with the inside of every piece that ``mesh`` does not hold turned outside: :func:`mesh_from_sdf`
+    keeps the largest piece of a grid's level set, and the pieces it drops (a fit's floaters: stray voxels a few
+    frames' noise left under a chair's seat) would otherwise stay inside the SDF stored beside the mesh, where a
+    proposer reading the SDF (a mirror image, columns carried down to the floor) brings them back as matter.
+
+    Pieces are the regions below ``iso_level`` joined through samples' faces (finer than marching cubes'
+    pieces); a piece is held when its deepest sample lies inside ``mesh`` (same coordinates as ``origin``). A
+    dropped piece's values are mirrored about the level (as far outside as they were inside), so the field
+    stays continuous and every piece the mesh holds keeps its values. When no piece's deepest sample is inside
+    the mesh (a mesh from elsewhere), ``grid`` is returned as it is."""
+    from scipy import ndimage
+
+    grid = np.asarray(grid, np.float32)
+    below = grid < iso_level
+    labels, count = ndimage.label(below)  # face neighbours: what only an edge or a corner joins, the mesh may split
+    if count <= 1 or len(mesh.faces) == 0:
+        return grid
+    import trimesh
+
+    from holousd.geometry._contact import inside
+
+    index = np.arange(1, count + 1)
+    deepest = np.array(ndimage.minimum_position(grid, labels, index), float)  # [count, 3] sample indices
+    held = inside(trimesh.Trimesh(mesh.points, mesh.faces, process=False),
+                  np.asarray(origin, float) + voxel_size * deepest)  # fmt: skip
+    if not held.any():
+        return grid
+    dropped = np.isin(labels, index[~held])
+    out = grid.copy()
+    out[dropped] = 2.0 * iso_level - grid[dropped]
+    return out

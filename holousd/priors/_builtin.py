@@ -14,7 +14,7 @@ import numpy as np
 
 from holousd._errors import HolousdError
 from holousd.geometry._grid import VoxelGrid, sample_grid, signed_distance_from_occupancy
-from holousd.geometry._meshing import mesh_from_sdf
+from holousd.geometry._meshing import mesh_from_sdf, meshed_only
 from holousd.priors._api import Candidate, ObjectEvidence
 from holousd.usd._types import SdfField
 
@@ -99,6 +99,7 @@ def _candidate(name: str, seed: int, occupied: np.ndarray, grid: VoxelGrid, note
     meshed = mesh_from_sdf(sdf, grid.origin, grid.voxel_size, max_faces=max_faces)
     if meshed is None or not meshed.watertight:
         return None
+    sdf = meshed_only(sdf, grid.origin, grid.voxel_size, meshed.mesh)  # what the meshing dropped is not the shape
     return Candidate(proposer=name, seed=seed, mesh=meshed.mesh,
                      sdf=SdfField(grid=sdf, origin=grid.origin, voxel_size=grid.voxel_size), note=note)  # fmt: skip
 
@@ -161,10 +162,17 @@ class ExtrudeProposer:
         return out
 
 
+LEG_REACH = 0.1
+"""A leg reaches below the median column's lowest sample by more than this share of the object's height above
+its support (:func:`_carried_down`)."""
+
+
 def _carried_down(occupied: np.ndarray, grid: VoxelGrid, floor: float, *, legs_only: bool) -> np.ndarray | None:
     """[X, Y, Z] ``occupied`` with its columns carried down to ``floor`` (object z): every occupied column, or
-    (``legs_only``) those already reaching below half the shape's height above the floor (legs and sides seen in
-    part; a table top's middle stays open). None when no column qualifies."""
+    (``legs_only``) those already reaching below half the shape's height above the floor and, where some do,
+    below the rest: more than ``LEG_REACH`` of that height under the median column's lowest sample (legs and
+    sides seen in part; a table top's middle stays open, and so does a chair's seat fitted below its mid-height
+    with the legs under it cut short). None when no column qualifies."""
     z = grid.origin[2] + grid.voxel_size * np.arange(grid.shape[2])
     has = occupied.any(axis=2)
     if not has.any():
@@ -173,7 +181,10 @@ def _carried_down(occupied: np.ndarray, grid: VoxelGrid, floor: float, *, legs_o
     top = float(z[np.nonzero(occupied.any(axis=(0, 1)))[0].max()])
     columns = has
     if legs_only:
-        columns = has & (z[np.minimum(bottom, grid.shape[2] - 1)] < floor + 0.5 * (top - floor))
+        lowest = z[np.minimum(bottom, grid.shape[2] - 1)]
+        columns = has & (lowest < floor + 0.5 * (top - floor))
+        reaching = columns & (lowest < float(np.median(lowest[has])) - LEG_REACH * (top - floor))
+        columns = reaching if reaching.any() else columns
     if not columns.any():
         return None
     below = np.arange(grid.shape[2])[None, None, :] <= bottom[:, :, None]

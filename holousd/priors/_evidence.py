@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from holousd._errors import SceneError
+from holousd.geometry._meshing import meshed_only
 from holousd.io._observations import Observations
 from holousd.priors._api import FrameEvidence, ObjectEvidence
 from holousd.usd._scene import BACKGROUND, SceneGraph
@@ -63,6 +66,8 @@ def object_evidence(scene: SceneGraph, obs: Observations, name: str, *, max_fram
         sdf = scene.get_sdf(name)
     except SceneError:
         sdf = None
+    if sdf is not None:  # the SDF's matter is the mesh's: a floater the meshing dropped is no evidence
+        sdf = replace(sdf, grid=meshed_only(sdf.grid, sdf.origin, sdf.voxel_size, mesh, sdf.iso_level))
     pose = scene.get_pose(name)
     showing = [i for i in range(len(obs)) if obs.has_masks and (obs.mask(i) == info.instance_id).any()]
     if max_frames is not None and len(showing) > max_frames:

@@ -74,7 +74,7 @@ from holousd.geometry._grid import (
     sample_grid,
     signed_distance_from_occupancy,
 )
-from holousd.geometry._meshing import face_budget, mesh_from_sdf
+from holousd.geometry._meshing import face_budget, mesh_from_sdf, meshed_only
 from holousd.geometry._poses import PoseConfig, PoseRefinement, axis_angle, refine_poses, spread_corrections
 from holousd.io._observations import Observations
 from holousd.render._volume import VolumeConfig
@@ -1275,8 +1275,9 @@ def fit(scene: SceneGraph, obs: Observations, config: FitConfig | None = None,
             origin = np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, lo[2]])
             scene.set_pose(inst.name, Pose(translation=to_world @ origin, orientation=room.orientation))
             scene.set_mesh(inst.name, MeshData(points=meshed_mesh.points - origin, faces=meshed_mesh.faces))
-            if inst.grid is not None and inst.sdf is not None:
-                scene.set_sdf(inst.name, SdfField(grid=inst.sdf, origin=inst.grid.origin - origin,
+            if inst.grid is not None and inst.sdf is not None:  # the SDF holds what the mesh holds, no floater
+                kept = meshed_only(inst.sdf, inst.grid.origin, inst.grid.voxel_size, meshed_mesh)
+                scene.set_sdf(inst.name, SdfField(grid=kept, origin=inst.grid.origin - origin,
                                                   voxel_size=inst.grid.voxel_size))  # fmt: skip
             fit_info.faces = len(meshed_mesh.faces)
             fit_info.watertight = _is_watertight(meshed_mesh)
