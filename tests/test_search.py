@@ -286,3 +286,42 @@ def test_energies_name_the_chosen_candidate_and_the_runner_up_that_e_obs_kept() 
     assert Energies(stable=0.0, touch=0.0, penetration=0.0).chosen is None
     # the search's verdict: E_stable 0, or chosen as standing on the parent's top once that is set up
     assert e.stands and not replace(e, stable=2.5).stands and replace(e, stable=2.5, stands_once_set_up=True).stands
+
+
+def test_a_child_hung_over_its_parents_edge_with_nothing_standing_is_moved_to_the_room() -> None:
+    """hard/top_only's bin, seen only from above: fitted as a strip of its top 40 cm over the floor, 1.3 cm of its
+    45 cm width over a bulge the fit gave its neighbour's hidden side, it was put on that cabinet, where no
+    candidate stands, and fell. Its underside lies over the cabinet on a few percent of it (``to_room_share``):
+    proposed again on the room, its top carried down to the floor stands there. A child mostly over its parent
+    stays (a cup on a table is not carried down through it), and one with no candidate standing on the room
+    either is not moved."""
+    from holousd.priors import ObjectEvidence
+    from holousd.usd import Pose
+
+    cfg = _search.SearchConfig()
+    cabinet = _mesh(*_box((-0.8, 0.0, 0.0), (0.013, 0.45, 0.8)))
+    strip = _box((0.0, 0.39, 0.40), (0.45, 0.45, 0.45))  # the bin's top, seen
+    share = _search._over_parent(_mesh(*strip), cabinet)
+    assert 0.0 < share < 0.1 < cfg.to_room_share, share
+    cup = _mesh(*_box((-0.4, 0.1, 0.8), (-0.3, 0.2, 0.9)))
+    assert _search._over_parent(cup, cabinet) == pytest.approx(1.0)  # on the cabinet's top: stays
+    seen = trimesh.Trimesh(*strip).sample(500, seed=0)
+    scorer = _search._Scorer(cfg, 0.0)
+
+    def evidence(support_height: float | None) -> ObjectEvidence:
+        return ObjectEvidence(name="bin", instance_id=1, pose=Pose(translation=[0.0, 0.0, 0.0]), mesh=_mesh(*strip),
+                              sdf=None, frames=[], points=seen, support="background",
+                              support_height=support_height)  # fmt: skip
+
+    specs = [("stage1", {}), ("extrude", {})]
+    moved = _search._on_the_room("bin", "cabinet", evidence(0.0), specs, cfg, scorer, {"cabinet": cabinet},
+                                 Pose(translation=[0.0, 0.0, 0.0]))  # fmt: skip
+    assert moved is not None
+    choice, found = moved
+    assert choice.parent == "background" and choice.moved_to_room == "cabinet" and choice.revisited
+    assert choice.best.proposer == "extrude" and choice.best.stable == 0.0
+    assert math.isinf(choice.scores[0].stable)  # the strip itself hangs in the air
+    assert found[choice.chosen][1].points[:, 2].min() == pytest.approx(0.0, abs=0.02)  # down to the floor
+    # control: no support height known on the room (nothing carried down): nothing stands, the child stays
+    assert _search._on_the_room("bin", "cabinet", evidence(None), specs, cfg, scorer, {"cabinet": cabinet},
+                                Pose(translation=[0.0, 0.0, 0.0])) is None  # fmt: skip

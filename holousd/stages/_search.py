@@ -63,6 +63,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from holousd._errors import HolousdError
 from holousd.usd._scene import BACKGROUND, SceneGraph
 from holousd.usd._types import Energies, MeshData
@@ -129,6 +131,14 @@ class SearchConfig:
     """``tree``: try the parent's other candidates when none of a child's stands (on the parent's chosen shape, nor
     on its top as the set-up will leave it: every candidate E_obs keeps is checked so when the lowest total does not
     stand, also for ``settle_beyond``)."""
+    to_room_share: float = 0.5
+    """``tree``: a child with no candidate that stands on its parent (nor once set up, nor after the parent's
+    revisit) whose fitted underside lies over its parent on less than this share of it (rays straight down from
+    its lowest points, meeting the parent anywhere) is proposed again on the room, and moved there when one of
+    those candidates stands (the support edge revisited, as the method's search does): hard/top_only's bin, seen
+    only from above, hung 40 cm over the floor by the 1.3 cm of its 45 cm width over a bulge the fit gave its
+    neighbour's hidden side, and fell whatever shape it took there. A child mostly over its parent stays on it
+    (a cup on a table is not carried down through the table)."""
     settle_beyond: float = 1.0
     """``tree``: the lowest total of a child whose centre of mass lies more than this outside its contacts on
     the parent's chosen shape, cm (E_stable above 1 + this), gives way to the lowest total of those that stand on
@@ -202,6 +212,8 @@ class ObjectChoice:
     revisited: bool = False
     """The choice was made by a revisit: a parent's, changed when one of its children had no candidate that
     stands; that child's, the lowest total among its candidates that stand on the parent's new choice."""
+    moved_to_room: str | None = None
+    """The parent the support tree first gave, when the child was moved onto the room (``to_room_share``)."""
     stands_once_set_up: bool = False
     """The chosen candidate does not stand on the parent's chosen shape but does on its top as the physics set-up
     leaves it (see ``SearchConfig.settle_beyond``)."""
@@ -388,7 +400,15 @@ def search(scene: SceneGraph, obs, config: SearchConfig | None = None,  # noqa: 
                 choice = ObjectChoice(name=name, parent=parent, scores=scores, chosen=chosen, wall_s=0.0)
                 if tree and config.revisit and settled == []:
                     _revisit(name, choice, found, by_name[parent], candidates[parent], relations, placed, scorer)
-                choice.stands_once_set_up = choice.best.stable > 0 and choice.chosen in (settled or ())
+                    if not choice.revisited and _over_parent(fitted[name], placed[parent]) < config.to_room_share:
+                        moved = _on_the_room(name, parent, evidence(name, BACKGROUND), specs, config, scorer,
+                                             {k: v for k, v in near.items() if k != parent} | {parent: placed[parent]},
+                                             poses[name])  # fmt: skip
+                        if moved is not None:
+                            choice, found = moved
+                            relations.support[name] = BACKGROUND  # a later revisit of its parent: no sibling
+                choice.stands_once_set_up = (choice.best.stable > 0 and choice.chosen in (settled or ())
+                                             and choice.moved_to_room is None)  # fmt: skip
                 placed[name] = found[choice.chosen][1]
                 candidates[name] = found
                 choice.wall_s = worker_s + time.perf_counter() - t0
@@ -398,6 +418,8 @@ def search(scene: SceneGraph, obs, config: SearchConfig | None = None,  # noqa: 
                     b = choice.best
                     verdict = ("stands" if b.stable == 0 else "stands once set up" if choice.stands_once_set_up
                                else "does not stand")  # fmt: skip
+                    if choice.moved_to_room is not None:
+                        verdict += f", moved from {choice.moved_to_room} to the room"
                     log(f"search [{len(choices)}/{len(names)}] {name}: {b.label} (total {b.total:.2f}, {verdict}) "
                         f"of {len(scores)} in {choice.wall_s:.1f} s")
     for choice in choices:
@@ -514,6 +536,50 @@ def _settled(found: list, scores: list[CandidateScore], parent: str, parent_mesh
     strip with its centre of mass behind it and tipped over; its bottom carried down whole stands there."""
     return [i for i, ((_, world), sc) in enumerate(zip(found, scores, strict=True))
             if math.isfinite(sc.total) and scorer.stands_once_set_up(world, parent, parent_mesh)]  # fmt: skip
+
+
+def _over_parent(child: MeshData, parent: MeshData, band: float = 0.02, rays: int = 256) -> float:
+    """Share of rays cast straight down from ``child``'s lowest points (surface samples within ``band`` of its
+    bottom, world meshes; seeded) that meet ``parent`` anywhere below them."""
+    import trimesh
+
+    from holousd._sampling import evenly_spaced
+
+    if len(child.faces) == 0 or len(parent.faces) == 0:
+        return 0.0
+    body = trimesh.Trimesh(np.asarray(child.points, float), np.asarray(child.faces), process=False)
+    points, _ = trimesh.sample.sample_surface(body, 8 * rays, seed=0)
+    points = np.concatenate([np.asarray(child.points, float), points])
+    low = points[points[:, 2] <= points[:, 2].min() + band]
+    low = low[evenly_spaced(len(low), rays)]
+    target = trimesh.Trimesh(np.asarray(parent.points, float), np.asarray(parent.faces), process=False)
+    down = np.tile([0.0, 0.0, -1.0], (len(low), 1))
+    return float(target.ray.intersects_any(low + [0.0, 0.0, 1e-4], down).mean())
+
+
+def _on_the_room(name: str, parent: str, evidence, specs: list[tuple[str, dict]],  # noqa: ANN001
+                 config: SearchConfig, scorer: _Scorer, near: dict[str, MeshData],
+                 pose) -> tuple[ObjectChoice, list] | None:  # noqa: ANN001  # fmt: skip
+    """``name``'s candidates proposed again on the room (carried down to the floor), scored against the floor and
+    the neighbours placed so far (``near``, its former parent among them): the choice of the lowest total among
+    those that stand, or None when none does (the child stays on ``parent``, see ``to_room_share``)."""
+    proposed = _proposed(specs, evidence, config.k, config.seed, config.max_seen_through, scorer, False,
+                         config.max_obs_gain)  # fmt: skip
+    found, scores = [], []
+    for cand, e_obs, rejected, (stable, touch) in proposed:
+        world = _world(pose, cand.mesh)
+        pene = scorer.penetration(world, BACKGROUND, near)
+        scores.append(CandidateScore(proposer=cand.proposer, seed=cand.seed, note=cand.note, observation=e_obs,
+                                     rejected=rejected, stable=stable, touch_cm=touch, pene_cm3=pene,
+                                     total=scorer.total(e_obs, rejected, stable, touch, pene)))  # fmt: skip
+        found.append((cand, world))
+    standing = [i for i, sc in enumerate(scores) if sc.stable == 0 and math.isfinite(sc.total)]
+    if not standing:
+        return None
+    chosen = min(standing, key=lambda i: (scores[i].total, i))
+    choice = ObjectChoice(name=name, parent=BACKGROUND, scores=scores, chosen=chosen, wall_s=0.0, revisited=True,
+                          moved_to_room=parent)  # fmt: skip
+    return choice, found
 
 
 def _revisit(name: str, choice: ObjectChoice, found: list, parent_choice: ObjectChoice, parent_found: list,
