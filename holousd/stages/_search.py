@@ -131,14 +131,16 @@ class SearchConfig:
     """``tree``: try the parent's other candidates when none of a child's stands (on the parent's chosen shape, nor
     on its top as the set-up will leave it: every candidate E_obs keeps is checked so when the lowest total does not
     stand, also for ``settle_beyond``)."""
-    to_room_share: float = 0.5
+    to_room_share: float = 0.25
     """``tree``: a child with no candidate that stands on its parent (nor once set up, nor after the parent's
-    revisit) whose fitted underside lies over its parent on less than this share of it (rays straight down from
-    its lowest points, meeting the parent anywhere) is proposed again on the room, and moved there when one of
-    those candidates stands (the support edge revisited, as the method's search does): hard/top_only's bin, seen
+    revisit) whose fitted footprint lies over its parent on less than this share of it (rays straight down from
+    its top, meeting the parent anywhere) is proposed again on the room, and moved there when one of those
+    candidates stands (the support edge revisited, as the method's search does): hard/top_only's bin, seen
     only from above, hung 40 cm over the floor by the 1.3 cm of its 45 cm width over a bulge the fit gave its
-    neighbour's hidden side, and fell whatever shape it took there. A child mostly over its parent stays on it
-    (a cup on a table is not carried down through the table)."""
+    neighbour's hidden side (4% of its footprint), and fell whatever shape it took there. A child over its
+    parent stays on it: a cup on a table is not carried down through the table, and on the phone captures of
+    bench_00 and bench_02 a ball in a shelf's bottom compartment (fitted through its board) and a box over a
+    hole the fit left in a shelf's board lie over their shelves on 49% and 45%."""
     settle_beyond: float = 1.0
     """``tree``: the lowest total of a child whose centre of mass lies more than this outside its contacts on
     the parent's chosen shape, cm (E_stable above 1 + this), gives way to the lowest total of those that stand on
@@ -538,9 +540,11 @@ def _settled(found: list, scores: list[CandidateScore], parent: str, parent_mesh
             if math.isfinite(sc.total) and scorer.stands_once_set_up(world, parent, parent_mesh)]  # fmt: skip
 
 
-def _over_parent(child: MeshData, parent: MeshData, band: float = 0.02, rays: int = 256) -> float:
-    """Share of rays cast straight down from ``child``'s lowest points (surface samples within ``band`` of its
-    bottom, world meshes; seeded) that meet ``parent`` anywhere below them."""
+def _over_parent(child: MeshData, parent: MeshData, rays: int = 256) -> float:
+    """Share of ``child``'s footprint over ``parent`` (world meshes): rays cast straight down from its top at the
+    xy of its surface samples (seeded), meeting ``parent`` anywhere below its top. A fit that ran the child's
+    underside down through its parent's board (a ball in a shelf's bottom compartment, fitted 8 cm through it)
+    is still over the parent."""
     import trimesh
 
     from holousd._sampling import evenly_spaced
@@ -549,12 +553,10 @@ def _over_parent(child: MeshData, parent: MeshData, band: float = 0.02, rays: in
         return 0.0
     body = trimesh.Trimesh(np.asarray(child.points, float), np.asarray(child.faces), process=False)
     points, _ = trimesh.sample.sample_surface(body, 8 * rays, seed=0)
-    points = np.concatenate([np.asarray(child.points, float), points])
-    low = points[points[:, 2] <= points[:, 2].min() + band]
-    low = low[evenly_spaced(len(low), rays)]
+    points = np.asarray(points, float)[evenly_spaced(len(points), rays)]
+    origins = np.column_stack([points[:, :2], np.full(len(points), body.bounds[1, 2] + 1e-4)])
     target = trimesh.Trimesh(np.asarray(parent.points, float), np.asarray(parent.faces), process=False)
-    down = np.tile([0.0, 0.0, -1.0], (len(low), 1))
-    return float(target.ray.intersects_any(low + [0.0, 0.0, 1e-4], down).mean())
+    return float(target.ray.intersects_any(origins, np.tile([0.0, 0.0, -1.0], (len(origins), 1))).mean())
 
 
 def _on_the_room(name: str, parent: str, evidence, specs: list[tuple[str, dict]],  # noqa: ANN001
