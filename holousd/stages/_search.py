@@ -32,7 +32,9 @@ Modes (``mode``; the ablation rows of ``holousd bench --search``):
   over where the fit left it open): with its centre of mass more than ``settle_beyond`` outside its contacts, the
   lowest total of those that stand there wins; when none does, the parent's other candidates are tried in order
   of their own total, and the first under which a child candidate stands and every child already placed on the
-  parent still stands replaces the parent's choice.
+  parent still stands replaces the parent's choice; when none does and the child's footprint lies over its parent
+  on less than ``to_room_share`` of it, the support edge is revisited: its candidates proposed again on the room,
+  the lowest total of those that stand there moves it onto the room (recorded as its support).
 - ``ground``: each object checked against the room only (the PhyRecon-like row): objects on the room are scored
   with every term against the floor; objects resting on other objects get E_obs alone (the room is all this
   mode knows of physics).
@@ -404,8 +406,7 @@ def search(scene: SceneGraph, obs, config: SearchConfig | None = None,  # noqa: 
                     _revisit(name, choice, found, by_name[parent], candidates[parent], relations, placed, scorer)
                     if not choice.revisited and _over_parent(fitted[name], placed[parent]) < config.to_room_share:
                         moved = _on_the_room(name, parent, evidence(name, BACKGROUND), specs, config, scorer,
-                                             {k: v for k, v in near.items() if k != parent} | {parent: placed[parent]},
-                                             poses[name])  # fmt: skip
+                                             near, poses[name])  # near: the parent's chosen shape among them
                         if moved is not None:
                             choice, found = moved
                             relations.support[name] = BACKGROUND  # a later revisit of its parent: no sibling
