@@ -226,6 +226,25 @@ def test_legs_the_fit_ended_short_under_a_low_seat_are_carried_down_and_the_seat
     solid = trimesh.Trimesh(legs_down.mesh.points, legs_down.mesh.faces)
     assert solid.contains([(x, y, 0.02) for x in (-0.46, 0.46) for y in (-0.26, 0.26)]).all()
     assert not solid.contains([(0.0, 0.0, 0.3)]).any()
+    # control: a ball fitted 5 mm over its board with a bump under it down to the board, its bulk not raised off
+    # it (LEG_RISE): every column below its middle is carried down, not the bump's alone (a stem the ball rolled
+    # off its shelf on)
+    from holousd.geometry import VoxelGrid, box_sdf
+    from holousd.geometry._meshing import mesh_from_sdf
+
+    grid = VoxelGrid.from_bounds(np.array([-0.06, -0.06, 0.0]), np.array([0.06, 0.06, 0.12]), 0.005, pad=2)
+    values = np.minimum(np.linalg.norm(grid.points() - [0.0, 0.0, 0.055], axis=1) - 0.05,
+                        box_sdf(grid.points(), np.array([-0.01, -0.01, 0.0]), np.array([0.01, 0.01, 0.01])))
+    values = values.reshape(grid.shape)
+    meshed = mesh_from_sdf(values, grid.origin, 0.005)
+    assert meshed is not None
+    ball = ObjectEvidence(name="ball", instance_id=1, pose=Pose(translation=[0.0, 0.0, 0.0]), mesh=meshed.mesh,
+                          sdf=SdfField(grid=values, origin=grid.origin, voxel_size=0.005), frames=[],
+                          points=trimesh.Trimesh(meshed.mesh.points, meshed.mesh.faces).sample(2000, seed=0),
+                          support="background", support_height=0.0)  # fmt: skip
+    down = next(c for c in make_proposer("extrude").propose(ball, 2, 0) if "mid-height" in c.note)
+    solid = trimesh.Trimesh(down.mesh.points, down.mesh.faces)
+    assert solid.contains([(0.0, 0.0, 0.004), (0.03, 0.0, 0.004), (0.0, -0.03, 0.004)]).all()
 
 
 def test_the_sdf_holds_what_the_mesh_holds_not_the_floaters_the_meshing_dropped(truth: SceneGraph, capture: Path,

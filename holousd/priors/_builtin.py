@@ -165,14 +165,20 @@ class ExtrudeProposer:
 LEG_REACH = 0.1
 """A leg reaches below the median column's lowest sample by more than this share of the object's height above
 its support (:func:`_carried_down`)."""
+LEG_RISE = 0.25
+"""Legs are looked for under a bulk whose median column's lowest sample lies more than this share of the
+object's height above its support (a chair's seat fitted 46% up; a ball's columns 15%, a box sagging at one edge
+14%, a bowl 1%: their sagging columns alone carried down made a stem under a ball, which then rolled off its
+shelf, and a ledge under a mug, which tipped 10 deg; hard/shelf, default preset)."""
 
 
 def _carried_down(occupied: np.ndarray, grid: VoxelGrid, floor: float, *, legs_only: bool) -> np.ndarray | None:
     """[X, Y, Z] ``occupied`` with its columns carried down to ``floor`` (object z): every occupied column, or
-    (``legs_only``) those already reaching below half the shape's height above the floor and, where some do,
-    below the rest: more than ``LEG_REACH`` of that height under the median column's lowest sample (legs and
-    sides seen in part; a table top's middle stays open, and so does a chair's seat fitted below its mid-height
-    with the legs under it cut short). None when no column qualifies."""
+    (``legs_only``) those already reaching below half the shape's height above the floor and, under a bulk
+    raised off the floor (its median column's lowest sample more than ``LEG_RISE`` of that height up), where
+    some do, below the rest: more than ``LEG_REACH`` of that height under that sample (legs and sides seen in
+    part; a table top's middle stays open, and so does a chair's seat fitted below its mid-height with the legs
+    under it cut short). None when no column qualifies."""
     z = grid.origin[2] + grid.voxel_size * np.arange(grid.shape[2])
     has = occupied.any(axis=2)
     if not has.any():
@@ -183,8 +189,10 @@ def _carried_down(occupied: np.ndarray, grid: VoxelGrid, floor: float, *, legs_o
     if legs_only:
         lowest = z[np.minimum(bottom, grid.shape[2] - 1)]
         columns = has & (lowest < floor + 0.5 * (top - floor))
-        reaching = columns & (lowest < float(np.median(lowest[has])) - LEG_REACH * (top - floor))
-        columns = reaching if reaching.any() else columns
+        median = float(np.median(lowest[has]))
+        if median > floor + LEG_RISE * (top - floor):
+            reaching = columns & (lowest < median - LEG_REACH * (top - floor))
+            columns = reaching if reaching.any() else columns
     if not columns.any():
         return None
     below = np.arange(grid.shape[2])[None, None, :] <= bottom[:, :, None]
