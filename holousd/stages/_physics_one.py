@@ -1253,6 +1253,7 @@ def _unclasped(bodies: dict[str, _Body], config: PhysicsSetupConfig) -> dict[str
                 continue
             limit = max(config.hull_tolerance, config.max_reach or 0.0)
             meshes = (out[a].world(), out[b].world())  # as they were before any clip of this pair
+            meshes_overlap = None  # m^3, asked once per pair
             deepest, clips = np.inf, 0
             while clips < 32:  # each clip removes one overlap of a pair of parts
                 found = _worst_overlap(out[a], out[b], deepest)
@@ -1261,7 +1262,9 @@ def _unclasped(bodies: dict[str, _Body], config: PhysicsSetupConfig) -> dict[str
                 j, k, depth = found
                 # the meshes' overlap (a boolean of both) only asked once a part overlaps deeper than a part may
                 # reach: where the meshes overlap, deeper is the mesh edits' business
-                if depth > limit and overlap(*meshes).volume_m3 >= config.min_overlap:
+                if depth > limit and meshes_overlap is None:
+                    meshes_overlap = overlap(*meshes).volume_m3
+                if depth > limit and meshes_overlap >= config.min_overlap:
                     deepest = limit
                     continue
                 # deeper than a part may reach: only a clip that takes next to nothing of the mesh (a hull over a

@@ -384,18 +384,7 @@ def search(scene: SceneGraph, obs, config: SearchConfig | None = None,  # noqa: 
                 if not ground:  # E_pene: the parent and the neighbours placed so far, this wave's included
                     around = object_neighbours(scene, name, support=parent, placed={**known, **placed})
                     near = {k: v for k, v in around.items() if k in placed or k == parent}
-                found, scores = [], []
-                for cand, e_obs, rejected, standing in proposed:
-                    world = _world(poses[name], cand.mesh)
-                    if ground and parent != BACKGROUND:
-                        stable, touch, pene = 0.0, 0.0, 0.0
-                    else:
-                        (stable, touch), pene = standing, scorer.penetration(world, parent, near)
-                    total = scorer.total(e_obs, rejected, stable, touch, pene)
-                    scores.append(CandidateScore(proposer=cand.proposer, seed=cand.seed, note=cand.note,
-                                                 observation=e_obs, rejected=rejected, stable=stable,
-                                                 touch_cm=touch, pene_cm3=pene, total=total))  # fmt: skip
-                    found.append((cand, world))
+                found, scores = _scored(proposed, poses[name], parent, near, scorer, ground)
                 if not scores:
                     continue
                 tree = config.mode == "tree" and parent in by_name  # on an object whose shape is chosen
@@ -410,8 +399,7 @@ def search(scene: SceneGraph, obs, config: SearchConfig | None = None,  # noqa: 
                         if moved is not None:
                             choice, found = moved
                             relations.support[name] = BACKGROUND  # a later revisit of its parent: no sibling
-                choice.stands_once_set_up = (choice.best.stable > 0 and choice.chosen in (settled or ())
-                                             and choice.moved_to_room is None)  # fmt: skip
+                choice.stands_once_set_up = choice.best.stable > 0 and choice.chosen in (settled or ())
                 placed[name] = found[choice.chosen][1]
                 candidates[name] = found
                 choice.wall_s = worker_s + time.perf_counter() - t0
@@ -541,6 +529,24 @@ def _settled(found: list, scores: list[CandidateScore], parent: str, parent_mesh
             if math.isfinite(sc.total) and scorer.stands_once_set_up(world, parent, parent_mesh)]  # fmt: skip
 
 
+def _scored(proposed: list, pose, parent: str, near: dict[str, MeshData], scorer: _Scorer,  # noqa: ANN001
+            ground: bool) -> tuple[list, list[CandidateScore]]:  # fmt: skip
+    """The proposed candidates (:func:`_proposed`) in the world (``pose``) with their scores on ``parent``: E_pene
+    against ``near``; ``ground`` and an object on another: E_obs alone. ``([(Candidate, world mesh)], scores)``."""
+    found, scores = [], []
+    for cand, e_obs, rejected, standing in proposed:
+        world = _world(pose, cand.mesh)
+        if ground and parent != BACKGROUND:
+            stable, touch, pene = 0.0, 0.0, 0.0
+        else:
+            (stable, touch), pene = standing, scorer.penetration(world, parent, near)
+        scores.append(CandidateScore(proposer=cand.proposer, seed=cand.seed, note=cand.note, observation=e_obs,
+                                     rejected=rejected, stable=stable, touch_cm=touch, pene_cm3=pene,
+                                     total=scorer.total(e_obs, rejected, stable, touch, pene)))  # fmt: skip
+        found.append((cand, world))
+    return found, scores
+
+
 def _over_parent(child: MeshData, parent: MeshData, rays: int = 256) -> float:
     """Share of ``child``'s footprint over ``parent`` (world meshes): rays cast straight down from its top at the
     xy of its surface samples (seeded), meeting ``parent`` anywhere below its top. A fit that ran the child's
@@ -568,14 +574,7 @@ def _on_the_room(name: str, parent: str, evidence, specs: list[tuple[str, dict]]
     those that stand, or None when none does (the child stays on ``parent``, see ``to_room_share``)."""
     proposed = _proposed(specs, evidence, config.k, config.seed, config.max_seen_through, scorer, False,
                          config.max_obs_gain)  # fmt: skip
-    found, scores = [], []
-    for cand, e_obs, rejected, (stable, touch) in proposed:
-        world = _world(pose, cand.mesh)
-        pene = scorer.penetration(world, BACKGROUND, near)
-        scores.append(CandidateScore(proposer=cand.proposer, seed=cand.seed, note=cand.note, observation=e_obs,
-                                     rejected=rejected, stable=stable, touch_cm=touch, pene_cm3=pene,
-                                     total=scorer.total(e_obs, rejected, stable, touch, pene)))  # fmt: skip
-        found.append((cand, world))
+    found, scores = _scored(proposed, pose, BACKGROUND, near, scorer, ground=False)
     standing = [i for i, sc in enumerate(scores) if sc.stable == 0 and math.isfinite(sc.total)]
     if not standing:
         return None
