@@ -172,13 +172,40 @@ object's height above its support (a chair's seat fitted 46% up; a ball's column
 shelf, and a ledge under a mug, which tipped 10 deg; hard/shelf, default preset)."""
 
 
+LEG_HOLD = 0.1
+"""Under a compact object (not raised off its support), the columns reaching below the rest are its legs when the
+base they make holds its centre of mass at least this share of its smaller width inside (:func:`_holds`)."""
+
+
+def _holds(columns: np.ndarray, occupied: np.ndarray, grid: VoxelGrid) -> bool:
+    """True when the footprint of ``columns`` [X, Y] (each a voxel wide) holds the centre of the ``occupied``
+    [X, Y, Z] voxels ``LEG_HOLD`` of the occupied footprint's smaller width inside its convex hull."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    half = 0.5 * grid.voxel_size
+    ij = np.argwhere(columns)
+    centres = grid.origin[:2] + grid.voxel_size * ij
+    corners = np.concatenate([centres + [dx, dy] for dx in (-half, half) for dy in (-half, half)])
+    cells = np.argwhere(occupied)
+    centre = grid.origin[:2] + grid.voxel_size * cells[:, :2].mean(axis=0)
+    width = float(np.min(np.ptp(cells[:, :2], axis=0))) * grid.voxel_size + grid.voxel_size
+    try:
+        hull = ConvexHull(corners)
+    except (QhullError, ValueError):
+        return False
+    margin = -float(np.max(hull.equations[:, :2] @ centre + hull.equations[:, 2]))
+    return margin >= LEG_HOLD * width
+
+
 def _carried_down(occupied: np.ndarray, grid: VoxelGrid, floor: float, *, legs_only: bool) -> np.ndarray | None:
     """[X, Y, Z] ``occupied`` with its columns carried down to ``floor`` (object z): every occupied column, or
     (``legs_only``) those already reaching below half the shape's height above the floor and, under a bulk
     raised off the floor (its median column's lowest sample more than ``LEG_RISE`` of that height up), where
     some do, below the rest: more than ``LEG_REACH`` of that height under that sample (legs and sides seen in
     part; a table top's middle stays open, and so does a chair's seat fitted below its mid-height with the legs
-    under it cut short). None when no column qualifies."""
+    under it cut short); under a compact object, those below the rest too where their base holds its centre of
+    mass (``LEG_HOLD``: feet; a bump under a ball is no base, and every column below mid-height is carried down).
+    None when no column qualifies."""
     z = grid.origin[2] + grid.voxel_size * np.arange(grid.shape[2])
     has = occupied.any(axis=2)
     if not has.any():
@@ -190,9 +217,11 @@ def _carried_down(occupied: np.ndarray, grid: VoxelGrid, floor: float, *, legs_o
         lowest = z[np.minimum(bottom, grid.shape[2] - 1)]
         columns = has & (lowest < floor + 0.5 * (top - floor))
         median = float(np.median(lowest[has]))
+        reaching = columns & (lowest < median - LEG_REACH * (top - floor))
         if median > floor + LEG_RISE * (top - floor):
-            reaching = columns & (lowest < median - LEG_REACH * (top - floor))
             columns = reaching if reaching.any() else columns
+        elif reaching.any() and _holds(reaching, occupied, grid):
+            columns = reaching
     if not columns.any():
         return None
     below = np.arange(grid.shape[2])[None, None, :] <= bottom[:, :, None]
