@@ -237,6 +237,47 @@ def test_a_lumpy_convex_object_becomes_its_hull(tmp_path: Path) -> None:
     assert rec.collider == "decomposition" and not any(e.startswith("convexify:hull") for e in rec.edits)
 
 
+def test_a_limited_hull_keeps_its_own_vertices_and_says_how_far_it_left_the_rest() -> None:
+    from scipy.spatial import ConvexHull
+
+    from holousd.geometry._hulls import limited_hull
+
+    sphere = trimesh.creation.icosphere(subdivisions=3, radius=0.1)  # 642 vertices, all on its hull
+    points, faces, off = limited_hull(sphere.vertices, 64)
+    assert len(points) == 64 and trimesh.Trimesh(points, faces).is_watertight
+    assert {tuple(p) for p in np.round(points, 12)} <= {tuple(p) for p in np.round(sphere.vertices, 12)}
+    hull = ConvexHull(points)
+    outside = (sphere.vertices @ hull.equations[:, :3].T + hull.equations[:, 3]).max(axis=1)
+    assert off == pytest.approx(outside.max(), abs=1e-12) and 0.0 < off < 0.01  # inside, 6 mm of r = 10 cm
+    again = limited_hull(sphere.vertices, 64)  # deterministic
+    assert np.array_equal(again[0], points) and np.array_equal(again[1], faces) and again[2] == off
+    box = _box((0, 0, 0), (0.3, 0.2, 0.1))
+    kept, _, off = limited_hull(box[0], 64)  # few enough: its own hull, nothing left out
+    assert len(kept) == 8 and off == 0.0
+    with pytest.raises(ValueError, match="at least 8"):
+        limited_hull(sphere.vertices, 4)
+
+
+def test_no_collider_part_has_more_vertices_than_physx_cooks_and_the_mesh_stays_inside(tmp_path: Path) -> None:
+    ball = trimesh.creation.icosphere(subdivisions=3, radius=0.1)  # a hull of 642 vertices
+    ball = (np.asarray(ball.vertices) + (0.0, 0.0, 0.1), np.asarray(ball.faces))
+    scene = _scene(tmp_path, {"ball": ball})
+    (rec,) = setup_physics(scene, PhysicsSetupConfig()).objects
+    (part,) = scene.get_collider("ball").parts
+    assert len(part.points) <= 64
+    assert any(e.startswith("hullVertices:") for e in rec.edits), rec.edits
+    mesh = scene.get_mesh("ball")
+    assert trimesh.Trimesh(mesh.points, mesh.faces).is_watertight
+    normals = np.cross(part.points[part.faces[:, 1]] - part.points[part.faces[:, 0]],
+                       part.points[part.faces[:, 2]] - part.points[part.faces[:, 0]])  # fmt: skip
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    offsets = np.einsum("ij,ij->i", normals, part.points[part.faces[:, 0]])
+    assert (mesh.points @ normals.T - offsets).max() < 1e-5  # the rendered solid is the collider's
+    (unlimited,) = setup_physics(_scene(tmp_path / "any", {"ball": ball}),
+                                 PhysicsSetupConfig(max_hull_vertices=None)).objects  # fmt: skip
+    assert not any(e.startswith("hullVertices:") for e in unlimited.edits)
+
+
 def test_a_lumpy_convex_object_under_another_becomes_its_hull_cut_clear_of_it(tmp_path: Path) -> None:
     """hard/stack's book had bumps on its cover beside the mug set on it: its hull bridged from them over the mug's
     base, so it became a decomposition of its lumps, 34 parts, and in MuJoCo slid 4 cm under the mug (both fell).

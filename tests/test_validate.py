@@ -117,6 +117,15 @@ def test_one_geometry_rules(example_copy: Path) -> None:
     (reach,) = _rules(scene.stage)["holousd:collider-reach"]
     assert reach.where == "/World/Objects/box/Collision" and "5.0 cm outside" in reach.message
     scene.set_collider("box", Collider(approximation="convexHull", parts=[box]))
+    assert "holousd:hull-vertices" not in _rules(scene.stage)
+    import trimesh
+
+    ball = trimesh.creation.icosphere(subdivisions=3, radius=0.02)  # a hull of 642 vertices
+    scene.set_collider("box", Collider(approximation="convexDecomposition", parts=[
+        box, MeshData(points=np.asarray(ball.vertices) + box.points.mean(axis=0), faces=np.asarray(ball.faces))]))
+    (many,) = _rules(scene.stage)["holousd:hull-vertices"]
+    assert many.severity == "warning" and "part 1 is a hull of 642 vertices" in many.message
+    scene.set_collider("box", Collider(approximation="convexHull", parts=[box]))
     mug = scene.get_pose("mug")
     scene.set_pose("box", Pose(translation=np.asarray(mug.translation) + [0.03, 0.0, 0.0]))  # into the mug
     (overlap,) = _rules(scene.stage)["holousd:overlap"]

@@ -20,6 +20,7 @@ __all__ = [
     "cut_axis",
     "cut_plane",
     "cut_below",
+    "limited_hull",
 ]
 
 ColliderParts = list[tuple[np.ndarray, np.ndarray]]
@@ -67,6 +68,46 @@ def convex_hull(points: np.ndarray, faces: np.ndarray | None = None) -> tuple[np
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     hull = trimesh.convex.convex_hull(pts)
     return np.asarray(hull.vertices, dtype=np.float64), np.asarray(hull.faces, dtype=np.int64)
+
+
+def limited_hull(points: np.ndarray, max_vertices: int = 64) -> tuple[np.ndarray, np.ndarray, float]:
+    """The convex hull of ``points`` with at most ``max_vertices`` vertices, all of them vertices of the full hull:
+    from the extreme points along the axes, the vertex farthest outside the hull of those chosen so far is added
+    until that many are chosen or none lies outside (an inner approximation: it lies inside the full hull).
+    Returns ``(points [N, 3], faces [F, 3])`` with outward winding, and how far the farthest of ``points`` lies
+    outside it, metres (0 and the full hull when that has at most ``max_vertices`` vertices).
+
+    PhysX cooks a convex collider of at most 64 vertices by default (Omni PhysX's ``hullVertexLimit``; 64 is also
+    its GPU collision's limit, 255 the most it cooks), from the vertices it is given: a hull authored with more is
+    replaced by one of PhysX's choosing. One authored within the limit is cooked as it is."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    if max_vertices < 8:
+        raise ValueError(f"limited_hull: max_vertices must be at least 8, got {max_vertices}")
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    full = ConvexHull(pts)
+    vertices = pts[full.vertices]
+    if len(vertices) <= max_vertices:
+        hull = convex_hull(vertices)
+        return hull[0], hull[1], 0.0
+    chosen = sorted({int(i) for i in (*np.argmin(vertices, axis=0), *np.argmax(vertices, axis=0))})
+    while True:  # extreme points on one plane (a flat part): add the vertex farthest from them until they span space
+        try:
+            hull = ConvexHull(vertices[chosen])
+            break
+        except QhullError:
+            far = np.linalg.norm(vertices - vertices[chosen].mean(axis=0), axis=1)
+            far[chosen] = -1.0
+            chosen.append(int(np.argmax(far)))
+    while True:
+        outside = (vertices @ hull.equations[:, :3].T + hull.equations[:, 3]).max(axis=1)  # > 0: outside a face
+        farthest = int(np.argmax(outside))
+        if len(hull.vertices) >= max_vertices or outside[farthest] <= 1e-12:
+            kept = vertices[np.asarray(chosen)[hull.vertices]]
+            out = convex_hull(kept)
+            return out[0], out[1], max(0.0, float(outside[farthest]))
+        chosen = [chosen[int(i)] for i in hull.vertices] + [farthest]
+        hull = ConvexHull(vertices[chosen])
 
 
 def _volume(points: np.ndarray, faces: np.ndarray) -> float:

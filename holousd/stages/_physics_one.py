@@ -53,7 +53,10 @@ objects:
 6. ``unclasp``: parts of two colliders that still overlap (hulls reaching past their meshes into a neighbour, at
    most ``hull_tolerance`` deep) are clipped apart by a plane of one's faces, and what of the clipped body's
    mesh lay in the piece cut off goes with it (``clip:collider:<other>``).
-7. ``mass``: mass, centre of mass and inertia (principal moments and axes) of the final mesh at ``density``.
+7. ``limit``: a collider part whose hull has more than ``max_hull_vertices`` vertices (PhysX cooks at most 64 by
+   default) becomes the hull of that many of its own; what of the mesh and SDF that smaller part leaves out (at most
+   a few millimetres) is cut away (``hullVertices:<mm>``).
+8. ``mass``: mass, centre of mass and inertia (principal moments and axes) of the final mesh at ``density``.
 
 Each object records (``HoloGeometryAPI``): its shift from the pose the fit gave (``holo:geometry:fitShift``), its
 collider's reach outside the mesh, its deepest penetration into another node (mesh into mesh or slab, collider
@@ -88,7 +91,7 @@ from holousd.geometry._contact import (
     without_zero_area_faces,
 )
 from holousd.geometry._decompose import Decomposition, convexify, plane_decomposition
-from holousd.geometry._hulls import cut_plane
+from holousd.geometry._hulls import cut_plane, limited_hull
 from holousd.graph import RelationConfig, Relations, infer_relations
 from holousd.stages._physics_setup import (
     PHYSICS_LAYER,
@@ -193,6 +196,15 @@ class PhysicsSetupConfig:
     becomes the union of the decomposition's parts: the rendered surface fills its concavities by at most that
     much (about what the object's own depth and masks allow), and the collider is then exactly the rendered
     solid. 0: never."""
+    max_hull_vertices: int | None = 64
+    """Most vertices of one convex collider part (at least 8). A part with more becomes the hull of that many of its
+    vertices (:func:`holousd.geometry._hulls.limited_hull`: inside it, within 2.6 mm of it on the bench and hard
+    suites, fast preset, 0.14 mm in the median) and the mesh is cut to what of it lies inside the parts (edit
+    ``hullVertices:<mm>``), so the collider stays the rendered solid. PhysX cooks a hull of at most 64 vertices by
+    default (Omni PhysX's ``hullVertexLimit``, also its GPU collision's limit) out of the points it is given: 181
+    of the 5665 parts of bench/fast and hard/fast had more (357 at most, a lumpy ball), and such a hull was
+    replaced by one of PhysX's choosing (capped at 64 in Newton's import, XPBD tipped 2 of 137 objects). None: no
+    limit."""
     background_collider: str = "slabs"
     """'slabs': floor and wall slabs (walls of any orientation about z) fitted to the background mesh (falls
     back to 'mesh' when no floor plane is found); 'mesh': the background's triangle mesh (approximation none)."""
@@ -1280,6 +1292,67 @@ def _unclasped(bodies: dict[str, _Body], config: PhysicsSetupConfig) -> dict[str
     return out
 
 
+def _within_vertex_limit(bodies: dict[str, _Body], config: PhysicsSetupConfig) -> dict[str, _Body]:
+    """Every collider part with at most ``max_hull_vertices`` vertices: a part with more becomes the hull of that
+    many of its own (inside it), and the mesh and SDF are cut to what lies inside the parts, where the hull left out
+    a vertex (edit ``hullVertices:<mm>``, the farthest one's distance), so that the collider stays the rendered
+    solid; its reach outside the mesh is measured again."""
+    if config.max_hull_vertices is None:
+        return bodies
+    out = dict(bodies)
+    for name, body in bodies.items():
+        kind, parts, reach = body.collider
+        limited, dropped, changed = [], 0.0, False
+        for part in parts:
+            if len(part.points) <= config.max_hull_vertices:
+                limited.append(part)
+                continue
+            points, faces, off = limited_hull(part.points, config.max_hull_vertices)
+            limited.append(MeshData(points=points, faces=faces))
+            dropped, changed = max(dropped, off), True
+        if not changed:
+            continue
+        if dropped <= 0.0:  # points that were no vertices: the same solid
+            out[name] = replace(body, collider=(kind, limited, reach))
+            continue
+        edit = f"hullVertices:{1000 * dropped:.1f}mm"
+        trimmed = body
+        if _left_out(body.mesh.points, parts, limited):
+            trimmed = body.within_convex([(p.points, p.faces) for p in limited], edit)
+        if trimmed is not body:
+            trimmed = replace(trimmed, mesh=_drop_degenerate(trimmed.mesh))
+            if not _closed(trimmed.mesh):
+                trimmed = body
+        if trimmed is body:  # nothing of the mesh outside the parts, or a cut that would open it: recorded; the
+            # reach as measured (the parts lie inside those measured: a new sample would only tell the same apart)
+            out[name] = replace(body, edits=(*body.edits, edit), collider=(kind, limited, reach))
+            continue
+        mesh = (trimmed.mesh.points, trimmed.mesh.faces)
+        reach = collider_reach([(p.points, p.faces) for p in limited], mesh, seed=config.seed)
+        out[name] = replace(trimmed, collider=(kind, limited, reach))
+    return out
+
+
+def _left_out(points: np.ndarray, parts: list[MeshData], limited: list[MeshData], eps: float = 1e-7) -> bool:
+    """Whether any of ``points`` (a mesh's vertices) lies in one of ``parts`` and in none of ``limited`` (the same
+    parts, some of them made smaller)."""
+    planes = [_face_planes((p.points, p.faces)) for p in limited]
+    for before, after in zip(parts, limited, strict=True):
+        if after is before:
+            continue
+        own_normals, own_offsets = _face_planes((before.points, before.faces))
+        lo, hi = before.points.min(axis=0) - eps, before.points.max(axis=0) + eps
+        near = points[np.all((points >= lo) & (points <= hi), axis=1)]
+        near = near[_max_plane_distance(near, np.column_stack([own_normals, -own_offsets])) <= eps]
+        for normals_k, offsets_k in planes:
+            if not len(near):
+                break
+            near = near[_max_plane_distance(near, np.column_stack([normals_k, -offsets_k])) > eps]
+        if len(near):
+            return True
+    return False
+
+
 def _worst_overlap(a: _Body, b: _Body, deepest: float) -> tuple[int, int, float] | None:
     """Indices of the pair of parts of ``a`` and ``b`` overlapping most (at most ``deepest``) and how deep, or
     None."""
@@ -1387,6 +1460,7 @@ def setup_physics(scene: SceneGraph, config: PhysicsSetupConfig | None = None,
     for name in sorted(bodies):  # one by one: each keeps out of what was shaped before it
         bodies[name] = _shaped(bodies[name], config, _around(name, bodies), config.keep_out_parts)
     bodies = _unclasped(bodies, config)
+    bodies = _within_vertex_limit(bodies, config)
 
     scene.push_layer(Path(out_dir) / PHYSICS_LAYER, provenance=config.provenance, replace=True)
     material = dict(static_friction=config.friction, dynamic_friction=config.friction,

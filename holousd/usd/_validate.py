@@ -378,7 +378,7 @@ def validate(stage: Usd.Stage) -> ValidationReport:
     cycles, no dangling targets); each object has a rigid body, a positive mass and a collider; SDF and splat
     assets resolve; splat array lengths agree with each other and with the bound mesh; every object's rendered
     mesh is watertight, its collider reaches at most 1 cm outside it, and no two objects' meshes overlap by more
-    than 1 cm^3.
+    than 1 cm^3; a warning where a collider part's hull has more vertices than PhysX cooks by default (64).
     """
     report = ValidationReport(scene=stage.GetRootLayer().identifier)
     for rules in (_usd_validators, _metadata_rules, _schema_rules, _support_rules, _physics_rules, _asset_rules,
@@ -391,6 +391,9 @@ MAX_COLLIDER_REACH = 0.01
 """A collider may reach at most this far outside its object's rendered mesh, metres."""
 MAX_OVERLAP = 1e-6
 """Two objects' rendered meshes may overlap by at most this volume, m^3 (1 cm^3)."""
+MAX_HULL_VERTICES = 64
+"""PhysX cooks a convex collider of at most this many vertices by default (Omni PhysX's ``hullVertexLimit``, its GPU
+collision's limit): a part whose hull has more is simplified by the simulator, not simulated as authored."""
 
 
 def _geometry_rules(stage: Usd.Stage) -> list[ValidationIssue]:
@@ -421,6 +424,15 @@ def _geometry_rules(stage: Usd.Stage) -> list[ValidationIssue]:
         if collider is not None and collider.approximation != "none":
             reach = collider_reach([(p.points, p.faces) for p in collider.parts], (mesh.points, mesh.faces),
                                    samples=500, hulls=True)  # fmt: skip
+            for k, part in enumerate(collider.parts):
+                count = _hull_vertices(part.points)
+                if count > MAX_HULL_VERTICES:
+                    issues.append(ValidationIssue(
+                        rule="holousd:hull-vertices", severity="warning", where=f"{prim.GetPath()}/Collision",
+                        message=f"collider part {k} is a hull of {count} vertices: PhysX cooks at most "
+                                f"{MAX_HULL_VERTICES} by default and simulates a simpler hull of its choosing",
+                        fix="re-run the physics set-up (holousd reconstruct --resume), whose parts keep within "
+                            "the limit, or split the part"))  # fmt: skip
             if reach > MAX_COLLIDER_REACH:
                 issues.append(_err("collider-reach", f"{prim.GetPath()}/Collision",
                                    f"the collider reaches {100 * reach:.1f} cm outside the rendered mesh (at most "
@@ -438,6 +450,19 @@ def _geometry_rules(stage: Usd.Stage) -> list[ValidationIssue]:
                                    f"(up to {100 * both.depth_m:.1f} cm deep): a simulator throws them apart",
                                    "cut them apart where they meet (holousd reconstruct's physics set-up does)"))
     return issues
+
+
+def _hull_vertices(points: np.ndarray) -> int:
+    """How many vertices the convex hull of ``points`` has (as many as there are points when qhull finds none)."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if len(pts) <= MAX_HULL_VERTICES:
+        return len(pts)
+    try:
+        return len(ConvexHull(pts).vertices)
+    except QhullError:
+        return len(pts)
 
 
 def _watertight(mesh) -> bool:  # noqa: ANN001 - MeshData
