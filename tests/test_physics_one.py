@@ -258,11 +258,11 @@ def test_a_limited_hull_keeps_its_own_vertices_and_says_how_far_it_left_the_rest
         limited_hull(sphere.vertices, 4)
 
 
-def test_no_collider_part_has_more_vertices_than_physx_cooks_and_the_mesh_stays_inside(tmp_path: Path) -> None:
+def test_with_physxs_vertex_limit_no_collider_part_has_more_and_the_mesh_stays_inside(tmp_path: Path) -> None:
     ball = trimesh.creation.icosphere(subdivisions=3, radius=0.1)  # a hull of 642 vertices
     ball = (np.asarray(ball.vertices) + (0.0, 0.0, 0.1), np.asarray(ball.faces))
     scene = _scene(tmp_path, {"ball": ball})
-    (rec,) = setup_physics(scene, PhysicsSetupConfig()).objects
+    (rec,) = setup_physics(scene, PhysicsSetupConfig(max_hull_vertices=64)).objects
     (part,) = scene.get_collider("ball").parts
     assert len(part.points) <= 64
     assert any(e.startswith("hullVertices:") for e in rec.edits), rec.edits
@@ -273,9 +273,10 @@ def test_no_collider_part_has_more_vertices_than_physx_cooks_and_the_mesh_stays_
     normals /= np.linalg.norm(normals, axis=1, keepdims=True)
     offsets = np.einsum("ij,ij->i", normals, part.points[part.faces[:, 0]])
     assert (mesh.points @ normals.T - offsets).max() < 1e-5  # the rendered solid is the collider's
-    (unlimited,) = setup_physics(_scene(tmp_path / "any", {"ball": ball}),
-                                 PhysicsSetupConfig(max_hull_vertices=None)).objects  # fmt: skip
+    free = _scene(tmp_path / "any", {"ball": ball})
+    (unlimited,) = setup_physics(free, PhysicsSetupConfig()).objects  # the default: no limit
     assert not any(e.startswith("hullVertices:") for e in unlimited.edits)
+    assert len(free.get_collider("ball").parts[0].points) > 64
 
 
 def test_a_lumpy_convex_object_under_another_becomes_its_hull_cut_clear_of_it(tmp_path: Path) -> None:

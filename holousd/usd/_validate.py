@@ -378,7 +378,7 @@ def validate(stage: Usd.Stage) -> ValidationReport:
     cycles, no dangling targets); each object has a rigid body, a positive mass and a collider; SDF and splat
     assets resolve; splat array lengths agree with each other and with the bound mesh; every object's rendered
     mesh is watertight, its collider reaches at most 1 cm outside it, and no two objects' meshes overlap by more
-    than 1 cm^3; a warning where a collider part's hull has more vertices than PhysX cooks by default (64).
+    than 1 cm^3; a note (info) where a collider part's hull has more vertices than PhysX cooks by default (64).
     """
     report = ValidationReport(scene=stage.GetRootLayer().identifier)
     for rules in (_usd_validators, _metadata_rules, _schema_rules, _support_rules, _physics_rules, _asset_rules,
@@ -424,15 +424,16 @@ def _geometry_rules(stage: Usd.Stage) -> list[ValidationIssue]:
         if collider is not None and collider.approximation != "none":
             reach = collider_reach([(p.points, p.faces) for p in collider.parts], (mesh.points, mesh.faces),
                                    samples=500, hulls=True)  # fmt: skip
-            for k, part in enumerate(collider.parts):
-                count = _hull_vertices(part.points)
-                if count > MAX_HULL_VERTICES:
-                    issues.append(ValidationIssue(
-                        rule="holousd:hull-vertices", severity="warning", where=f"{prim.GetPath()}/Collision",
-                        message=f"collider part {k} is a hull of {count} vertices: PhysX cooks at most "
-                                f"{MAX_HULL_VERTICES} by default and simulates a simpler hull of its choosing",
-                        fix="re-run the physics set-up (holousd reconstruct --resume), whose parts keep within "
-                            "the limit, or split the part"))  # fmt: skip
+            counts = [_hull_vertices(part.points) for part in collider.parts]
+            many = [c for c in counts if c > MAX_HULL_VERTICES]
+            if many:  # one note per object
+                issues.append(ValidationIssue(
+                    rule="holousd:hull-vertices", severity="info", where=f"{prim.GetPath()}/Collision",
+                    message=f"{len(many)} of {len(counts)} collider parts are hulls of more than {MAX_HULL_VERTICES} "
+                            f"vertices (up to {max(many)}): PhysX cooks at most {MAX_HULL_VERTICES} by default and "
+                            "simulates simpler hulls of its choosing",
+                    fix="split those parts, or run the physics set-up again with PhysicsSetupConfig("
+                        "max_hull_vertices=64)"))  # fmt: skip
             if reach > MAX_COLLIDER_REACH:
                 issues.append(_err("collider-reach", f"{prim.GetPath()}/Collision",
                                    f"the collider reaches {100 * reach:.1f} cm outside the rendered mesh (at most "
