@@ -98,6 +98,7 @@ from holousd.stages._physics_setup import (
     ObjectPhysics,
     PhysicsSetupResult,
     Wall,
+    _depth_inside,
     _descendants,
     _room_planes,
     _room_slabs,
@@ -1340,18 +1341,16 @@ def _within_vertex_limit(bodies: dict[str, _Body], config: PhysicsSetupConfig) -
 def _left_out(points: np.ndarray, parts: list[MeshData], limited: list[MeshData], eps: float = 1e-7) -> bool:
     """Whether any of ``points`` (a mesh's vertices) lies in one of ``parts`` and in none of ``limited`` (the same
     parts, some of them made smaller)."""
-    planes = [_face_planes((p.points, p.faces)) for p in limited]
     for before, after in zip(parts, limited, strict=True):
         if after is before:
             continue
-        own_normals, own_offsets = _face_planes((before.points, before.faces))
         lo, hi = before.points.min(axis=0) - eps, before.points.max(axis=0) + eps
         near = points[np.all((points >= lo) & (points <= hi), axis=1)]
-        near = near[_max_plane_distance(near, np.column_stack([own_normals, -own_offsets])) <= eps]
-        for normals_k, offsets_k in planes:
+        near = near[_depth_inside(before.points, near) >= -eps]
+        for part in limited:
             if not len(near):
                 break
-            near = near[_max_plane_distance(near, np.column_stack([normals_k, -offsets_k])) > eps]
+            near = near[_depth_inside(part.points, near) < -eps]
         if len(near):
             return True
     return False
