@@ -251,6 +251,13 @@ def test_a_limited_hull_keeps_its_own_vertices_and_says_how_far_it_left_the_rest
     assert off == pytest.approx(outside.max(), abs=1e-12) and 0.0 < off < 0.01  # inside, 6 mm of r = 10 cm
     again = limited_hull(sphere.vertices, 64)  # deterministic
     assert np.array_equal(again[0], points) and np.array_equal(again[1], faces) and again[2] == off
+    cut = sphere.vertices[sphere.vertices[:, 2] > -0.09]  # a ball cut flat at its base: the base is what it stands on
+    angles = np.linspace(0.0, 2.0 * np.pi, 40, endpoint=False)
+    ring = np.column_stack([0.0436 * np.cos(angles), 0.0436 * np.sin(angles), np.full(40, -0.09)])
+    points, _, off = limited_hull(np.vstack([cut, ring]), 64)
+    base = points[np.abs(points[:, 2] + 0.09) < 1e-9]
+    assert len(points) == 64 and off < 0.01
+    assert ConvexHull(base[:, :2]).volume > 0.95 * ConvexHull(ring[:, :2]).volume  # its corners kept, not cut off
     box = _box((0, 0, 0), (0.3, 0.2, 0.1))
     kept, _, off = limited_hull(box[0], 64)  # few enough: its own hull, nothing left out
     assert len(kept) == 8 and off == 0.0
@@ -262,7 +269,7 @@ def test_with_physxs_vertex_limit_no_collider_part_has_more_and_the_mesh_stays_i
     ball = trimesh.creation.icosphere(subdivisions=3, radius=0.1)  # a hull of 642 vertices
     ball = (np.asarray(ball.vertices) + (0.0, 0.0, 0.1), np.asarray(ball.faces))
     scene = _scene(tmp_path, {"ball": ball})
-    (rec,) = setup_physics(scene, PhysicsSetupConfig(max_hull_vertices=64)).objects
+    (rec,) = setup_physics(scene, PhysicsSetupConfig()).objects  # the default: PhysX's 64
     (part,) = scene.get_collider("ball").parts
     assert len(part.points) <= 64
     assert any(e.startswith("hullVertices:") for e in rec.edits), rec.edits
@@ -274,7 +281,7 @@ def test_with_physxs_vertex_limit_no_collider_part_has_more_and_the_mesh_stays_i
     offsets = np.einsum("ij,ij->i", normals, part.points[part.faces[:, 0]])
     assert (mesh.points @ normals.T - offsets).max() < 1e-5  # the rendered solid is the collider's
     free = _scene(tmp_path / "any", {"ball": ball})
-    (unlimited,) = setup_physics(free, PhysicsSetupConfig()).objects  # the default: no limit
+    (unlimited,) = setup_physics(free, PhysicsSetupConfig(max_hull_vertices=None)).objects
     assert not any(e.startswith("hullVertices:") for e in unlimited.edits)
     assert len(free.get_collider("ball").parts[0].points) > 64
 

@@ -72,8 +72,9 @@ def convex_hull(points: np.ndarray, faces: np.ndarray | None = None) -> tuple[np
 
 def limited_hull(points: np.ndarray, max_vertices: int = 64) -> tuple[np.ndarray, np.ndarray, float]:
     """The convex hull of ``points`` with at most ``max_vertices`` vertices, all of them vertices of the full hull:
-    from the extreme points along the axes, the vertex farthest outside the hull of those chosen so far is added
-    until that many are chosen or none lies outside (an inner approximation: it lies inside the full hull).
+    from the vertices of its lowest and highest level faces (at most a quarter of ``max_vertices`` each, evenly round
+    the face) and the extreme points along the axes, the vertex farthest outside the hull of those chosen so far is
+    added until that many are chosen or none lies outside (an inner approximation: it lies inside the full hull).
     Returns ``(points [N, 3], faces [F, 3])`` with outward winding, and how far the farthest of ``points`` lies
     outside it, metres (0 and the full hull when that has at most ``max_vertices`` vertices).
 
@@ -91,6 +92,23 @@ def limited_hull(points: np.ndarray, max_vertices: int = 64) -> tuple[np.ndarray
         hull = convex_hull(vertices)
         return hull[0], hull[1], 0.0
     chosen = sorted({int(i) for i in (*np.argmin(vertices, axis=0), *np.argmax(vertices, axis=0))})
+    # the vertices of its lowest and highest level faces (a base it stands on, a top cut flat under what rests on
+    # it) while they leave room for the rest: a greedy choice of the farthest kept a lumpy ball's bumps and cut the
+    # corners of its flat base, and it rolled
+    level = np.abs(full.equations[:, 2]) >= 1.0 - 1e-6
+    for side in (-1.0, 1.0):
+        if not (level & (np.sign(full.equations[:, 2]) == side)).any():
+            continue
+        height = vertices[:, 2].min() if side < 0 else vertices[:, 2].max()
+        flat = np.flatnonzero(np.abs(vertices[:, 2] - height) <= 1e-7)
+        if len(flat) < 3:
+            continue
+        centre = vertices[flat, :2].mean(axis=0)
+        flat = flat[np.argsort(np.arctan2(*(vertices[flat, :2] - centre).T[::-1]), kind="stable")]  # around it
+        room = max_vertices // 4  # at most a quarter of the vertices for each: evenly round the polygon
+        if len(flat) > room:
+            flat = flat[np.unique(np.floor(np.linspace(0, len(flat), room, endpoint=False)).astype(int))]
+        chosen = sorted(set(chosen) | {int(i) for i in flat})
     while True:  # extreme points on one plane (a flat part): add the vertex farthest from them until they span space
         try:
             hull = ConvexHull(vertices[chosen])

@@ -53,9 +53,9 @@ objects:
 6. ``unclasp``: parts of two colliders that still overlap (hulls reaching past their meshes into a neighbour, at
    most ``hull_tolerance`` deep) are clipped apart by a plane of one's faces, and what of the clipped body's
    mesh lay in the piece cut off goes with it (``clip:collider:<other>``).
-7. ``limit`` (off by default): a collider part whose hull has more than ``max_hull_vertices`` vertices (PhysX
-   cooks at most 64 by default) becomes the hull of that many of its own; what of the mesh and SDF that smaller part
-   leaves out (at most a few millimetres) is cut away (``hullVertices:<mm>``).
+7. ``limit``: a collider part whose hull has more than ``max_hull_vertices`` vertices (PhysX cooks at most 64 by
+   default) becomes the hull of that many of its own, its lowest and highest level faces kept; what of the mesh and
+   SDF that smaller part leaves out (a few millimetres) is cut away (``hullVertices:<mm>``).
 8. ``mass``: mass, centre of mass and inertia (principal moments and axes) of the final mesh at ``density``.
 
 Each object records (``HoloGeometryAPI``): its shift from the pose the fit gave (``holo:geometry:fitShift``), its
@@ -197,19 +197,17 @@ class PhysicsSetupConfig:
     becomes the union of the decomposition's parts: the rendered surface fills its concavities by at most that
     much (about what the object's own depth and masks allow), and the collider is then exactly the rendered
     solid. 0: never."""
-    max_hull_vertices: int | None = None
+    max_hull_vertices: int | None = 64
     """Most vertices of one convex collider part (at least 8), or None: no limit. A part with more becomes the hull
-    of that many of its own vertices (:func:`holousd.geometry._hulls.limited_hull`: inside it) and the mesh is cut to
-    what of it lies inside the parts (edit ``hullVertices:<mm>``), so the collider stays the rendered solid. PhysX
-    cooks a hull of at most 64 vertices by default (Omni PhysX's ``hullVertexLimit``, also its GPU collision's limit)
-    out of the points it is given: 181 of the 5665 parts of bench/fast and hard/fast had more (357 at most, a lumpy
-    ball). Off by default, measured with 64 (365aff6, every row of the README's table on the same search layers): the
-    hulls of 64 lie within 2.6 mm of the parts (0.14 mm in the median), yet the demo's ball (402 vertices, 3.2 mm)
-    lost the flat base it stands on to the greedy choice, which keeps the farthest vertices and not a base's, and
-    rolls 5.6 deg in both solvers (the demo 100 / 100 -> 90 / 90), and hard/thin's book_1 tips in XPBD (hard/fast
-    100 / 100 -> 98 / 100); bench/fast[phone] rose 93 / 92 -> 97 / 95 (at 365aff6 with LEG_HOLD, which the runs
-    without the limit did not isolate). A limit that keeps the vertices of the faces an object rests on, and of
-    those cut flat under what rests on it, is what this needs before it is on."""
+    of that many of its own vertices (:func:`holousd.geometry._hulls.limited_hull`: inside it, its lowest and highest
+    level faces kept) and the mesh is cut to what of it lies inside the parts (edit ``hullVertices:<mm>``), so the
+    collider stays the rendered solid. PhysX cooks a hull of at most 64 vertices by default (Omni PhysX's
+    ``hullVertexLimit``, also its GPU collision's limit) out of the points it is given: 181 of the 5665 parts of
+    bench/fast and hard/fast had more (357 at most, a lumpy ball), and such a part was simulated as a hull of
+    PhysX's choosing. Without the level faces kept (365aff6, every row of the README's table on the same search
+    layers) the demo's ball lost the flat base it stands on and rolled 5.6 deg in both solvers (the demo 100 / 100
+    -> 90 / 90) and hard/thin's book_1 tipped in XPBD; with them kept, the demo 100 / 100 and all seven hard/fast
+    scenes 100 / 100 (agreement 100) on the same search layers, no part over 64 points."""
     background_collider: str = "slabs"
     """'slabs': floor and wall slabs (walls of any orientation about z) fitted to the background mesh (falls
     back to 'mesh' when no floor plane is found); 'mesh': the background's triangle mesh (approximation none)."""

@@ -432,8 +432,8 @@ def _geometry_rules(stage: Usd.Stage) -> list[ValidationIssue]:
                     message=f"{len(many)} of {len(counts)} collider parts are hulls of more than {MAX_HULL_VERTICES} "
                             f"vertices (up to {max(many)}): PhysX cooks at most {MAX_HULL_VERTICES} by default and "
                             "simulates simpler hulls of its choosing",
-                    fix="split those parts, or run the physics set-up again with PhysicsSetupConfig("
-                        "max_hull_vertices=64)"))  # fmt: skip
+                    fix="split those parts, or run holousd's physics set-up again (its parts keep within "
+                        f"{MAX_HULL_VERTICES})"))  # fmt: skip
             if reach > MAX_COLLIDER_REACH:
                 issues.append(_err("collider-reach", f"{prim.GetPath()}/Collision",
                                    f"the collider reaches {100 * reach:.1f} cm outside the rendered mesh (at most "
