@@ -21,7 +21,13 @@ __all__ = [
     "cut_plane",
     "cut_below",
     "limited_hull",
+    "PHYSX_HULL_VERTEX_LIMIT",
 ]
+
+PHYSX_HULL_VERTEX_LIMIT = 64
+"""PhysX cooks a convex collider of at most this many vertices by default (Omni PhysX's ``hullVertexLimit``, also its
+GPU collision's limit; 255 the most it cooks): a part whose hull has more is simplified by the simulator, not
+simulated as authored. The set-up's default limit and ``holousd validate``'s note both use it."""
 
 ColliderParts = list[tuple[np.ndarray, np.ndarray]]
 """Convex parts, each ``(points [N, 3], faces [F, 3])``."""
@@ -70,7 +76,9 @@ def convex_hull(points: np.ndarray, faces: np.ndarray | None = None) -> tuple[np
     return np.asarray(hull.vertices, dtype=np.float64), np.asarray(hull.faces, dtype=np.int64)
 
 
-def limited_hull(points: np.ndarray, max_vertices: int = 64) -> tuple[np.ndarray, np.ndarray, float]:
+def limited_hull(
+    points: np.ndarray, max_vertices: int = PHYSX_HULL_VERTEX_LIMIT
+) -> tuple[np.ndarray, np.ndarray, float]:
     """The convex hull of ``points`` with at most ``max_vertices`` vertices, all of them vertices of the full hull:
     from the vertices of its lowest and highest level faces (at most a quarter of ``max_vertices`` each, evenly round
     the face) and the extreme points along the axes, the vertex farthest outside the hull of those chosen so far is

@@ -91,7 +91,7 @@ from holousd.geometry._contact import (
     without_zero_area_faces,
 )
 from holousd.geometry._decompose import Decomposition, convexify, plane_decomposition
-from holousd.geometry._hulls import cut_plane, limited_hull
+from holousd.geometry._hulls import PHYSX_HULL_VERTEX_LIMIT, cut_plane, limited_hull
 from holousd.graph import RelationConfig, Relations, infer_relations
 from holousd.stages._physics_setup import (
     PHYSICS_LAYER,
@@ -197,7 +197,7 @@ class PhysicsSetupConfig:
     becomes the union of the decomposition's parts: the rendered surface fills its concavities by at most that
     much (about what the object's own depth and masks allow), and the collider is then exactly the rendered
     solid. 0: never."""
-    max_hull_vertices: int | None = 64
+    max_hull_vertices: int | None = PHYSX_HULL_VERTEX_LIMIT
     """Most vertices of one convex collider part (at least 8), or None: no limit. A part with more becomes the hull
     of that many of its own vertices (:func:`holousd.geometry._hulls.limited_hull`: inside it, its lowest and highest
     level faces kept) and the mesh is cut to what of it lies inside the parts (edit ``hullVertices:<mm>``), so the

@@ -12,6 +12,7 @@ import numpy as np
 from pxr import Sdf, Usd, UsdGeom, UsdPhysics, UsdValidation, UsdVol
 
 from holousd._errors import SceneError
+from holousd.geometry._hulls import PHYSX_HULL_VERTEX_LIMIT
 from holousd.usd._plugin import API_SCHEMAS, SCHEMA_VERSION
 from holousd.usd._scene import BACKGROUND_PATH, OBJECTS_PATH, schema_version_of
 
@@ -391,9 +392,8 @@ MAX_COLLIDER_REACH = 0.01
 """A collider may reach at most this far outside its object's rendered mesh, metres."""
 MAX_OVERLAP = 1e-6
 """Two objects' rendered meshes may overlap by at most this volume, m^3 (1 cm^3)."""
-MAX_HULL_VERTICES = 64
-"""PhysX cooks a convex collider of at most this many vertices by default (Omni PhysX's ``hullVertexLimit``, its GPU
-collision's limit): a part whose hull has more is simplified by the simulator, not simulated as authored."""
+MAX_HULL_VERTICES = PHYSX_HULL_VERTEX_LIMIT
+"""Collider parts with more hull vertices than this are noted (see :data:`PHYSX_HULL_VERTEX_LIMIT`)."""
 
 
 def _geometry_rules(stage: Usd.Stage) -> list[ValidationIssue]:
