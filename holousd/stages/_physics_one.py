@@ -92,6 +92,7 @@ from holousd.geometry._contact import (
 )
 from holousd.geometry._decompose import Decomposition, convexify, plane_decomposition
 from holousd.geometry._hulls import PHYSX_HULL_VERTEX_LIMIT, cut_plane, limited_hull
+from holousd.geometry._meshing import meshed_only
 from holousd.graph import RelationConfig, Relations, infer_relations
 from holousd.stages._physics_setup import (
     PHYSICS_LAYER,
@@ -266,6 +267,7 @@ class _Body:
             grid = _grid_points(sdf)
             outside = off_obj - grid @ n_obj  # > 0 on the removed side: distance to the half-space
             sdf = replace(sdf, grid=np.maximum(sdf.grid, outside.reshape(sdf.grid.shape)).astype(np.float32))
+            sdf = _held(sdf, points, faces)
         return replace(self, mesh=MeshData(points=points, faces=faces), sdf=sdf, edits=(*self.edits, edit),
                        collider=None)
 
@@ -284,6 +286,7 @@ class _Body:
             for inside_part in _part_distances(sdf, local):  # < 0 inside the part
                 values = np.maximum(values, -inside_part)
             sdf = replace(sdf, grid=values.reshape(sdf.grid.shape).astype(np.float32))
+            sdf = _held(sdf, points, faces)
         return replace(self, mesh=MeshData(points=points, faces=faces), sdf=sdf, edits=(*self.edits, edit),
                        collider=None)
 
@@ -321,6 +324,7 @@ class _Body:
                 signed = np.where(inside(target, grid[near]), -distance, distance)
                 values[near] = np.maximum(values[near], signed)
             sdf = replace(sdf, grid=values.reshape(sdf.grid.shape).astype(np.float32))
+            sdf = _held(sdf, points, faces)
         return replace(self, mesh=MeshData(points=points, faces=faces), sdf=sdf, edits=(*self.edits, edit),
                        collider=None)
 
@@ -337,6 +341,7 @@ class _Body:
                 union = np.minimum(union, inside_part)
             values = np.maximum(sdf.grid.reshape(-1).astype(np.float64), union)
             sdf = replace(sdf, grid=values.reshape(sdf.grid.shape).astype(np.float32))
+            sdf = _held(sdf, points, faces)
         return replace(self, mesh=MeshData(points=points, faces=faces), sdf=sdf,
                        edits=(*self.edits, f"{edit}:{1e6 * removed:.1f}cm3"), collider=None)  # fmt: skip
 
@@ -387,6 +392,13 @@ def _max_plane_distance(points: np.ndarray, planes: np.ndarray, chunk: int = 327
         block += offsets
         out[start : start + chunk] = block.max(axis=1)
     return out
+
+
+def _held(sdf: SdfField, points: np.ndarray, faces: np.ndarray) -> SdfField:
+    """The SDF without the pieces a cut's new mesh ``(points, faces)`` no longer holds (crumbs and slivers a cut
+    dropped: :func:`holousd.geometry._contact._one_piece`), so that the field and the mesh stay one solid."""
+    return replace(sdf, grid=meshed_only(sdf.grid, sdf.origin, sdf.voxel_size, MeshData(points=points, faces=faces),
+                                         sdf.iso_level))  # fmt: skip
 
 
 def _grid_points(sdf: SdfField) -> np.ndarray:
