@@ -499,6 +499,19 @@ def test_a_neighbour_through_a_board_is_taken_out_of_the_board(tmp_path: Path) -
     assert list(inside) == [False, True, True]
 
 
+def test_overlap_depth_is_its_deepest_solid_piece_not_the_sheets_beside_it() -> None:
+    # a block 5 mm into the top of a cube, and beside the cube a block whose face lies a micron into the cube's
+    # side: the intersection is the 5 mm slab and a sheet of the side; measured as one, 5 cm "deep"
+    cube = _box((0, 0, 0), (0.1, 0.1, 0.1))
+    side, top = _box((-0.1, 0, 0), (1e-6, 0.1, 0.1)), _box((0.05, 0.05, 0.095), (0.15, 0.1, 0.15))
+    other = (np.vstack([side[0], top[0]]), np.vstack([side[1], top[1] + len(side[0])]))
+    both = overlap(cube, other)
+    assert both.volume_m3 == pytest.approx(0.05 * 0.05 * 0.005 + 1e-6 * 0.01, rel=1e-6)
+    assert both.depth_m == pytest.approx(0.005, abs=1e-6)
+    assert abs(both.thin_axis[2]) == pytest.approx(1.0)  # the slab's thin direction
+    assert overlap(cube, side).depth_m == pytest.approx(1e-6, abs=1e-9)  # the sheet alone is all there is
+
+
 def test_overlap_depth_and_cuts_of_turned_and_split_objects() -> None:
     turn = trimesh.transformations.rotation_matrix(np.radians(45.0), [0, 0, 1])
     a = trimesh.creation.box(extents=[0.4, 0.4, 0.4])

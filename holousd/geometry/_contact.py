@@ -176,13 +176,16 @@ class Overlap:
     """Volume of the intersection, m^3 (0 when they do not overlap)."""
     depth_m: float
     """Thickness of the intersection across its thinnest principal direction (how far one reaches into the
-    other, whatever the objects' orientation), metres."""
+    other, whatever the objects' orientation), metres: the deepest of its solid pieces, each measured on its own.
+    Faces that lie on each other (a base cut flat on a top, two neighbours cut apart at one plane) leave sheets of
+    no volume in the intersection: measured with them, a lens of 0.07 cm^3 between two balls (1.9 mm thick) read
+    4.2 cm (bench_00 (phone)), its sheets spanning the contact."""
     lo: np.ndarray
     """[3] lower corner of the intersection's bounding box, metres."""
     hi: np.ndarray
     """[3] upper corner of the intersection's bounding box, metres."""
     thin_axis: np.ndarray | None = None
-    """[3] unit direction along which the intersection is thinnest (None when there is none)."""
+    """[3] unit direction along which the intersection's largest piece is thinnest (None when there is none)."""
 
 
 def overlap(a: Mesh, b: Mesh, *, min_volume: float = 1e-9, above: float | None = None) -> Overlap:
@@ -202,13 +205,32 @@ def overlap(a: Mesh, b: Mesh, *, min_volume: float = 1e-9, above: float | None =
     if both.is_empty() or both.volume() < min_volume:
         return none
     box = np.asarray(both.bounding_box(), float).reshape(2, 3)
-    points = _mesh(both)[0]
+    pieces = sorted(both.decompose(), key=lambda c: -float(c.volume()))
+    depth, thin_axis = 0.0, None
+    for piece in pieces:  # the deepest of its solid pieces, each measured on its own (see Overlap.depth_m)
+        if float(piece.volume()) < SHEET * float(pieces[0].volume()):
+            break
+        thickness, axis = _thinnest(piece)
+        if thin_axis is None:  # the largest piece's
+            thin_axis = axis
+        depth = max(depth, thickness)
+    return Overlap(volume_m3=float(both.volume()), depth_m=depth, lo=box[0], hi=box[1], thin_axis=thin_axis)
+
+
+SHEET = 0.01
+"""Share of the largest piece of an intersection below which a piece of it is no solid piece: the sheets of no
+volume that faces lying on each other leave (:func:`overlap`)."""
+
+
+def _thinnest(solid) -> tuple[float, np.ndarray]:  # noqa: ANN001
+    """Thickness of a solid across the thinnest of its principal directions (or of its box's axes, when thinner),
+    metres, and that principal direction."""
+    box = np.asarray(solid.bounding_box(), float).reshape(2, 3)
+    points = _mesh(solid)[0]
     centred = points - points.mean(0)
-    _, _, axes = np.linalg.svd(centred, full_matrices=False)  # rows: principal directions of the intersection
+    _, _, axes = np.linalg.svd(centred, full_matrices=False)  # rows: principal directions of the solid
     extents = np.ptp(centred @ axes.T, axis=0)
-    depth = float(min(extents.min(), (box[1] - box[0]).min()))  # thinnest across any of its principal axes
-    return Overlap(volume_m3=float(both.volume()), depth_m=depth, lo=box[0], hi=box[1],
-                   thin_axis=axes[int(np.argmin(extents))])
+    return float(min(extents.min(), (box[1] - box[0]).min())), axes[int(np.argmin(extents))]
 
 
 def area_samples(tri: np.ndarray, area: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:
