@@ -501,7 +501,7 @@ def test_a_neighbour_through_a_board_is_taken_out_of_the_board(tmp_path: Path) -
 
 def test_overlap_depth_is_its_deepest_solid_piece_not_the_sheets_beside_it() -> None:
     # a block 5 mm into the top of a cube, and beside the cube a block whose face lies a micron into the cube's
-    # side: the intersection is the 5 mm slab and a sheet of the side; measured as one, 5 cm "deep"
+    # side: the intersection is the 5 mm slab and a sheet of the side; measured as one, 8.8 cm "deep"
     cube = _box((0, 0, 0), (0.1, 0.1, 0.1))
     side, top = _box((-0.1, 0, 0), (1e-6, 0.1, 0.1)), _box((0.05, 0.05, 0.095), (0.15, 0.1, 0.15))
     other = (np.vstack([side[0], top[0]]), np.vstack([side[1], top[1] + len(side[0])]))
