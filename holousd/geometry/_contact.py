@@ -90,19 +90,15 @@ def _one_piece(solid, before: float, min_keep: float, original=None):  # noqa: A
     import manifold3d
 
     pieces = [p for p in solid.decompose() if p.volume() >= 0.01 * before]
+    if len(pieces) > 1:
+        allowed = 1 if original is None else sum(p.volume() >= 0.01 * before for p in original.decompose())
+        if len(pieces) > allowed:  # more than the object had: the largest stay when the rest are crumbs
+            pieces = sorted(pieces, key=lambda p: -p.volume())
+            if sum(p.volume() for p in pieces[allowed:]) > CRUMBS * sum(p.volume() for p in pieces):
+                return None
+            pieces = pieces[:allowed]
     if not pieces or sum(p.volume() for p in pieces) < min_keep * before:
         return None
-    if len(pieces) == 1:
-        return pieces[0]
-    allowed = 1 if original is None else sum(p.volume() >= 0.01 * before for p in original.decompose())
-    if len(pieces) > allowed:
-        pieces = sorted(pieces, key=lambda p: -p.volume())
-        left = sum(p.volume() for p in pieces)
-        if sum(p.volume() for p in pieces[allowed:]) > CRUMBS * left:
-            return None
-        pieces = pieces[:allowed]
-        if sum(p.volume() for p in pieces) < min_keep * before:
-            return None
     return manifold3d.Manifold.compose(pieces) if len(pieces) > 1 else pieces[0]
 
 
