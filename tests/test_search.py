@@ -177,6 +177,43 @@ def test_revisit_changes_the_parents_choice_when_no_child_candidate_stands() -> 
     assert kid.best.stable == 0.0 and kid.best.total == pytest.approx(0.1 + cfg.w_touch * kid.best.touch_cm)
 
 
+def test_a_child_seen_in_a_few_pixels_does_not_remake_a_parent_seen_in_thousands() -> None:
+    """``revisit_obs_budget``: the parent's rise in E_obs, counted over its pixels, must be paid for by the child's
+    pixels. bench_01 (phone): a book seen in 50 pixels had its cabinet (14 000 pixels) swapped for the visual hull,
+    22 cm into the corner no camera saw. The same trade for a child seen about as much as its parent is made."""
+    cfg = _search.SearchConfig()
+    scorer = _search._Scorer(cfg, 0.0)
+    child = _mesh(*_box((0.0, 0.0, 0.30), (0.2, 0.1, 0.4)))
+    narrow = _mesh(*_box((-0.3, 0.0, 0.0), (0.02, 0.1, 0.30)))  # the child's centre of mass past its end
+    wide = _mesh(*_box((-0.3, 0.0, 0.0), (0.3, 0.1, 0.30)))
+    stable, touch, pene = scorer.physics(child, "table", narrow, {"table": narrow})
+    relations = type("R", (), {"children": staticmethod(lambda p: ["box"])})()
+
+    def revisit(child_px: int, parent_px: int) -> tuple[_search.ObjectChoice, _search.ObjectChoice, dict]:
+        scores = [_search.CandidateScore(proposer=label, seed=0, note="", observation=obs, rejected=False,
+                                         stable=0.0, touch_cm=0.0, pene_cm3=0.0, total=obs)
+                  for label, obs in (("stage1", 0.56), ("visual_hull", 0.78))]  # fmt: skip
+        parent = _search.ObjectChoice(name="table", parent="background", chosen=0, wall_s=0.0, scores=scores,
+                                      pixels=parent_px)  # fmt: skip
+        kid = _search.ObjectChoice(name="box", parent="table", chosen=0, wall_s=0.0, pixels=child_px, scores=[
+            _search.CandidateScore(proposer="stage1", seed=0, note="", observation=0.9, rejected=False, stable=stable,
+                                   touch_cm=0.1, pene_cm3=0.0, total=scorer.total(0.9, False, stable, touch, pene))])
+        placed = {"table": narrow}
+        _search._revisit("box", kid, [(None, child)], parent, [(None, narrow), (None, wide)], relations, placed,
+                         scorer)  # fmt: skip
+        return parent, kid, placed
+
+    parent, kid, placed = revisit(50, 14000)  # 0.22 x 14 000 px against 0.25 x 50 px: refused
+    assert parent.chosen == 0 and not parent.revisited and placed["table"] is narrow and kid.best.stable > 1.0
+    assert "visual_hull#0 would stand it, refused" in kid.revisit_refused
+    parent, kid, placed = revisit(14000, 14000)  # seen as much as its parent: the trade is made
+    assert parent.chosen == 1 and placed["table"] is wide and kid.best.stable == 0.0 and not kid.revisit_refused
+    parent, _, _ = revisit(0, 14000)  # pixels not counted (a caller that builds its own choices): no limit
+    assert parent.chosen == 1
+    cfg.revisit_obs_budget = None
+    assert revisit(50, 14000)[0].chosen == 1
+
+
 def test_a_base_sunk_into_its_support_is_touch_and_legs_sunk_unevenly_into_the_floor_stand() -> None:
     """E_pene leaves out a base sunk into its parent within ``parent_band`` (E_touch measures it, the set-up cuts
     it flat): 3 mm of a book over its footprint outweighed every other term and the search chose worse shapes.

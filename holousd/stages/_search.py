@@ -32,7 +32,8 @@ Modes (``mode``; the ablation rows of ``holousd bench --search``):
   over where the fit left it open): with its centre of mass more than ``settle_beyond`` outside its contacts, the
   lowest total of those that stand there wins; when none does, the parent's other candidates are tried in order
   of their own total, and the first under which a child candidate stands and every child already placed on the
-  parent still stands replaces the parent's choice; when none does and the child's footprint lies over its parent
+  parent still stands replaces the parent's choice, unless it explains the parent's pixels worse by more than the
+  child's pixels allow (``revisit_obs_budget``); when none does and the child's footprint lies over its parent
   on less than ``to_room_share`` of it, the support edge is revisited: its candidates proposed again on the room,
   the lowest total of those that stand there moves it onto the room (recorded as its support).
 - ``ground``: each object checked against the room only (the PhyRecon-like row): objects on the room are scored
@@ -133,6 +134,15 @@ class SearchConfig:
     """``tree``: try the parent's other candidates when none of a child's stands (on the parent's chosen shape, nor
     on its top as the set-up will leave it: every candidate E_obs keeps is checked so when the lowest total does not
     stand, also for ``settle_beyond``)."""
+    revisit_obs_budget: float | None = 0.25
+    """``tree``: a revisit may make the parent explain what was seen of it worse only as much as the child may
+    itself: the rise of the parent's E_obs, counted over the pixels the cameras saw of it (in E_obs' frames), at
+    most this times the child's pixels (the E_obs each object may lose, ``max_obs_gain``, spent by the child on its
+    parent). E_obs is each object's mean over its pixels where the method's sums over them, so that a child seen
+    in a few pixels does not remake a parent seen in thousands: on bench_01's phone capture a book seen in 50
+    pixels of three frames, fitted 44 cm wide, stood on no shape of the cabinet's but its visual hull (E_obs
+    0.56 -> 0.78 over 14 000 pixels, 22 cm into the corner no camera saw), and the book still fell once set up.
+    None: no limit."""
     to_room_share: float = 0.25
     """``tree``: a child with no candidate that stands on its parent (nor once set up, nor after the parent's
     revisit) whose fitted footprint lies over its parent on less than this share of it (rays straight down from
@@ -221,6 +231,11 @@ class ObjectChoice:
     stands_once_set_up: bool = False
     """The chosen candidate does not stand on the parent's chosen shape but does on its top as the physics set-up
     leaves it (see ``SearchConfig.settle_beyond``)."""
+    pixels: int = 0
+    """Pixels of the object in the frames E_obs re-renders into (its evidence; 0: not counted)."""
+    revisit_refused: str = ""
+    """The parent's candidate under which the child would stand and the revisit that ``revisit_obs_budget`` refused
+    (empty: none)."""
 
     @property
     def best(self) -> CandidateScore:
@@ -390,13 +405,15 @@ def search(scene: SceneGraph, obs, config: SearchConfig | None = None,  # noqa: 
                 tree = config.mode == "tree" and parent in by_name  # on an object whose shape is chosen
                 chosen, settled = _choose(found, scores, parent, placed.get(parent) if tree else None, scorer,
                                           config.settle_beyond)  # fmt: skip
-                choice = ObjectChoice(name=name, parent=parent, scores=scores, chosen=chosen, wall_s=0.0)
+                choice = ObjectChoice(name=name, parent=parent, scores=scores, chosen=chosen, wall_s=0.0,
+                                      pixels=_pixels(gathered[name]))  # fmt: skip
                 if tree and config.revisit and settled == []:
                     _revisit(name, choice, found, by_name[parent], candidates[parent], relations, placed, scorer)
                     if not choice.revisited and _over_parent(fitted[name], placed[parent]) < config.to_room_share:
                         moved = _on_the_room(name, parent, evidence(name, BACKGROUND), specs, config, scorer,
                                              near, poses[name])  # near: the parent's chosen shape among them
                         if moved is not None:
+                            moved[0].pixels, moved[0].revisit_refused = choice.pixels, choice.revisit_refused
                             choice, found = moved
                             relations.support[name] = BACKGROUND  # a later revisit of its parent: no sibling
                 choice.stands_once_set_up = choice.best.stable > 0 and choice.chosen in (settled or ())
@@ -411,6 +428,8 @@ def search(scene: SceneGraph, obs, config: SearchConfig | None = None,  # noqa: 
                                else "does not stand")  # fmt: skip
                     if choice.moved_to_room is not None:
                         verdict += f", moved from {choice.moved_to_room} to the room"
+                    if choice.revisit_refused:
+                        verdict += f"; {choice.revisit_refused}"
                     log(f"search [{len(choices)}/{len(names)}] {name}: {b.label} (total {b.total:.2f}, {verdict}) "
                         f"of {len(scores)} in {choice.wall_s:.1f} s")
     for choice in choices:
@@ -584,17 +603,29 @@ def _on_the_room(name: str, parent: str, evidence, specs: list[tuple[str, dict]]
     return choice, found
 
 
+def _pixels(evidence) -> int:  # noqa: ANN001 - ObjectEvidence
+    """Pixels of the object in its evidence's frames (those E_obs re-renders into)."""
+    return int(sum(np.count_nonzero(f.labels == evidence.instance_id) for f in evidence.frames))
+
+
 def _revisit(name: str, choice: ObjectChoice, found: list, parent_choice: ObjectChoice, parent_found: list,
              relations, placed: dict[str, MeshData], scorer: _Scorer) -> None:  # noqa: ANN001  # fmt: skip
     """No candidate of ``name`` stands on its parent's chosen shape: try the parent's other candidates (lowest
     total first); take the first under which one of the child's stands and every sibling placed on the parent
-    still stands."""
+    still stands, and whose rise in E_obs over the parent's pixels the child's pixels pay for
+    (``SearchConfig.revisit_obs_budget``; the first such one it refuses is named in ``choice.revisit_refused``)."""
     parent = parent_choice.name
     siblings = [s for s in relations.children(parent) if s in placed and s != name]
     order = sorted((i for i, s in enumerate(parent_choice.scores) if i != parent_choice.chosen
                     and math.isfinite(s.total)), key=lambda i: parent_choice.scores[i].total)  # fmt: skip
+    budget = scorer.config.revisit_obs_budget
     for i in order:
         alt = parent_found[i][1]
+        rise = parent_choice.scores[i].observation - parent_choice.best.observation
+        over = budget is not None and min(choice.pixels, parent_choice.pixels) > 0 and (
+            rise * parent_choice.pixels > budget * choice.pixels)
+        if over and choice.revisit_refused:
+            continue  # (refused already: only the first, the lowest total, is named)
         rescored = []
         for (_, world), s in zip(found, choice.scores, strict=True):
             stable, touch, pene = scorer.physics(world, parent, alt, {parent: alt})
@@ -603,6 +634,11 @@ def _revisit(name: str, choice: ObjectChoice, found: list, parent_choice: Object
         if not standing:
             continue
         if any(scorer.physics(placed[s], parent, alt, {parent: alt})[0] > 0 for s in siblings):
+            continue
+        if over:
+            choice.revisit_refused = (f"{parent}'s {parent_choice.scores[i].label} would stand it, refused: its E_obs "
+                                      f"+{rise:.2f} over {parent_choice.pixels} px against the child's "
+                                      f"{choice.pixels} px (revisit_obs_budget)")  # fmt: skip
             continue
         parent_choice.chosen = i
         parent_choice.revisited = True
