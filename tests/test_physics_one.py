@@ -114,6 +114,31 @@ def test_collider_reach_measures_what_the_hull_adds() -> None:
     assert collider_reach([box], box) < 1e-6
 
 
+
+def test_queries_on_a_prebuilt_triangle_tree_answer_as_trimeshs_own() -> None:
+    from holousd.geometry._contact import queryable, with_tree
+
+    sphere = trimesh.creation.icosphere(subdivisions=3, radius=0.2)
+    lumpy = (np.asarray(sphere.vertices) * (1.0 + 0.1 * np.sin(7.0 * sphere.vertices[:, :1])), np.asarray(sphere.faces))
+    rng = np.random.default_rng(3)
+    points = rng.uniform(-0.3, 0.3, (400, 3))
+    mine, theirs = queryable(lumpy), trimesh.Trimesh(*lumpy, process=False)
+    assert "triangles_tree" in mine._cache.cache and "triangles_tree" not in theirs._cache.cache
+    lo, hi = points - 0.05, points + 0.05
+    for a, b in zip(mine.triangles_tree.intersection_v(lo, hi), theirs.triangles_tree.intersection_v(lo, hi),
+                    strict=True):  # fmt: skip
+        assert np.array_equal(a, b)  # the same candidates in the same order
+    for a, b in zip(trimesh.proximity.closest_point(mine, points), trimesh.proximity.closest_point(theirs, points),
+                    strict=True):  # fmt: skip
+        assert np.array_equal(a, b)
+    down = np.tile([0.0, 0.0, -1.0], (len(points), 1))
+    for a, b in zip(mine.ray.intersects_location(points, down), theirs.ray.intersects_location(points, down),
+                    strict=True):  # fmt: skip
+        assert np.array_equal(a, b)
+    tree = mine.triangles_tree
+    assert with_tree(mine).triangles_tree is tree  # built once
+    assert len(with_tree(trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), np.int64))).faces) == 0
+
 # ----------------------------------------------------------------------------------------------- the stage
 def test_supports_and_children_rest_on_their_rendered_meshes(tmp_path: Path) -> None:
     objects = {

@@ -94,7 +94,7 @@ def _piece(solid, tolerance: float, keep_out: list | None = None) -> _Piece:  # 
     import trimesh
     from scipy.spatial import cKDTree
 
-    from holousd.geometry._contact import _mesh
+    from holousd.geometry._contact import _mesh, queryable
 
     hull = solid.hull()
     points, faces = _mesh(solid)
@@ -105,7 +105,7 @@ def _piece(solid, tolerance: float, keep_out: list | None = None) -> _Piece:  # 
     distance, _ = cKDTree(surface).query(probes)
     far = distance > 0.5 * tolerance
     if np.any(far) and len(faces):
-        _, exact, _ = trimesh.proximity.closest_point(trimesh.Trimesh(points, faces, process=False), probes[far])
+        _, exact, _ = trimesh.proximity.closest_point(queryable((points, faces)), probes[far])
         distance[far] = exact
     k = int(np.argmax(distance))
     return _Piece(solid=solid, volume=float(solid.volume()), hull=hull, hull_volume=float(hull.volume()),
@@ -122,12 +122,10 @@ class _Outside:
         self._target = None
 
     def __call__(self, points: np.ndarray) -> float:
-        import trimesh
-
-        from holousd.geometry._contact import farthest_outside
+        from holousd.geometry._contact import farthest_outside, queryable
 
         if self._target is None:
-            self._target = trimesh.Trimesh(np.asarray(self.mesh[0], float), np.asarray(self.mesh[1]), process=False)
+            self._target = queryable(self.mesh)
         return farthest_outside(self._target, points)
 
 

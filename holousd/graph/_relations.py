@@ -123,9 +123,10 @@ class Relations:
 
 
 def _trimesh(mesh: Mesh):  # noqa: ANN202
-    import trimesh
+    """A trimesh of ``mesh`` for ray and closest-point queries (its triangle tree built at once)."""
+    from holousd.geometry._contact import queryable
 
-    return trimesh.Trimesh(vertices=np.asarray(mesh[0], float), faces=np.asarray(mesh[1], np.int64), process=False)
+    return queryable(mesh)
 
 
 def _contact_points(mesh: Mesh, config: RelationConfig) -> np.ndarray:

@@ -123,7 +123,10 @@ def static_stability(body: Mesh, support: Mesh | float | None, *, friction: floa
         import trimesh
         from trimesh.ray.ray_triangle import RayMeshIntersector
 
-        target = trimesh.Trimesh(np.asarray(support[0], float), np.asarray(support[1], np.int64), process=False)
+        from holousd.geometry._contact import with_tree
+
+        target = with_tree(trimesh.Trimesh(np.asarray(support[0], float), np.asarray(support[1], np.int64),
+                                           process=False))  # fmt: skip
         origins = low + np.array([0.0, 0.0, ray_start])
         where, index, face = RayMeshIntersector(target).intersects_location(
             origins, np.tile([0.0, 0.0, -1.0], (len(low), 1)), multiple_hits=False)  # fmt: skip

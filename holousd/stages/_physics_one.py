@@ -86,6 +86,7 @@ from holousd.geometry._contact import (
     cut_by_plane,
     mass_properties,
     overlap,
+    queryable,
     subtract,
     within,
     without_zero_area_faces,
@@ -319,7 +320,7 @@ class _Body:
             margin = 2.0 * sdf.voxel_size
             near = np.flatnonzero(np.all((grid >= both.lo - margin) & (grid <= both.hi + margin), axis=1))
             if len(near):
-                target = trimesh.Trimesh(points, faces, process=False)
+                target = queryable((points, faces))
                 distance = trimesh.proximity.closest_point(target, grid[near])[1]
                 signed = np.where(inside(target, grid[near]), -distance, distance)
                 values[near] = np.maximum(values[near], signed)

@@ -574,6 +574,7 @@ def _over_parent(child: MeshData, parent: MeshData, rays: int = 256) -> float:
     import trimesh
 
     from holousd._sampling import evenly_spaced
+    from holousd.geometry._contact import queryable
 
     if len(child.faces) == 0 or len(parent.faces) == 0:
         return 0.0
@@ -581,7 +582,7 @@ def _over_parent(child: MeshData, parent: MeshData, rays: int = 256) -> float:
     points, _ = trimesh.sample.sample_surface(body, 8 * rays, seed=0)
     points = np.asarray(points, float)[evenly_spaced(len(points), rays)]
     origins = np.column_stack([points[:, :2], np.full(len(points), body.bounds[1, 2] + 1e-4)])
-    target = trimesh.Trimesh(np.asarray(parent.points, float), np.asarray(parent.faces), process=False)
+    target = queryable((parent.points, parent.faces))
     return float(target.ray.intersects_any(origins, np.tile([0.0, 0.0, -1.0], (len(origins), 1))).mean())
 
 
