@@ -114,7 +114,6 @@ def test_collider_reach_measures_what_the_hull_adds() -> None:
     assert collider_reach([box], box) < 1e-6
 
 
-
 def test_queries_on_a_prebuilt_triangle_tree_answer_as_trimeshs_own() -> None:
     from holousd.geometry._contact import queryable, with_tree
 
@@ -138,6 +137,7 @@ def test_queries_on_a_prebuilt_triangle_tree_answer_as_trimeshs_own() -> None:
     tree = mine.triangles_tree
     assert with_tree(mine).triangles_tree is tree  # built once
     assert len(with_tree(trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), np.int64))).faces) == 0
+
 
 # ----------------------------------------------------------------------------------------------- the stage
 def test_supports_and_children_rest_on_their_rendered_meshes(tmp_path: Path) -> None:

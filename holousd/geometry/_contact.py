@@ -254,8 +254,8 @@ def with_tree(target):  # noqa: ANN001, ANN201 - a trimesh.Trimesh, returned
     """``target`` (a trimesh) with its triangles' r-tree built now: the very tree trimesh builds on the first
     closest-point or ray query (the same candidates, in the same order; the answers do not change), bulk-loaded
     from arrays where trimesh streams it from Python one triangle at a time: 16 ms against 157 ms for a fitted
-    shelf of 21 000 triangles, and 13 of bench_00's 126 s of physics set-up (fast preset) went to building such
-    trees. A tree already built is kept."""
+    shelf of 21 000 triangles; bench_00 (fast)'s physics set-up built 1349 trees in 13.3 s so, 2.0 s this way. A
+    tree already built is kept."""
     import rtree
 
     if "triangles_tree" in target._cache.cache or len(target.faces) == 0:
