@@ -377,6 +377,26 @@ def test_cli_stability_json(tmp_path, capsys) -> None:
     assert "cross_check" not in json.loads(capsys.readouterr().out)
 
 
+def test_cli_stability_takes_the_xpbd_iteration_count(tmp_path, capsys, monkeypatch) -> None:
+    import holousd.physics._stability as stability_module
+
+    scene = tmp_path / "scene.usda"
+    make_scene(_stack(), path=str(scene))
+    seen = []
+    real = stability_module.stability
+
+    def spy(source, config=None, **kwargs):  # noqa: ANN001, ANN202
+        seen.append(config.iterations)
+        return real(source, config, **kwargs)
+
+    monkeypatch.setattr(stability_module, "stability", spy)
+    assert _run_cli(["stability", str(scene), "--json", "--seconds", "0.25", "--xpbd-iterations", "12"]) == 0
+    assert seen == [12] and json.loads(capsys.readouterr().out)["xpbd_iterations"] == 12
+    assert _run_cli(["stability", str(scene), "--xpbd-iterations", "0"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--xpbd-iterations 0" in err[0] and seen == [12]
+
+
 def test_cli_simulate_push_writes_layer(tmp_path, capsys) -> None:
     scene = tmp_path / "scene.usda"
     make_scene(_stack(), path=str(scene))

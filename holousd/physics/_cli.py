@@ -18,6 +18,7 @@ __all__ = ["add_commands"]
 def add_commands(subparsers: argparse._SubParsersAction) -> None:
     """Register ``stability``, ``simulate`` and ``bench-physics`` on the ``holousd`` parser."""
     from ._solvers import SOLVERS
+    from ._stability import StabilityConfig
 
     stab = subparsers.add_parser(
         "stability",
@@ -41,6 +42,15 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
         help="solver of the cross-check (None: the one that is not --solver)",
     )
     stab.add_argument("--seconds", type=float, default=2.0, help="simulated time, s")
+    stab.add_argument(
+        "--xpbd-iterations",
+        type=int,
+        default=None,
+        metavar="N",
+        help="XPBD constraint iterations per step, for experiments (default: the protocol's, "
+        f"{StabilityConfig.iterations}); more converge contacts further: a light object resting on a heavy one can "
+        "chatter at the protocol's count",
+    )
     stab.add_argument("--alone", action="store_true", help="also test each object alone on its static support chain")
     stab.set_defaults(handler=_stability)
 
@@ -108,6 +118,8 @@ class _Progress:
 
 
 def _stability(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
     from ._errors import PhysicsInputError
     from ._stability import StabilityConfig, stability, stability_each_alone
 
@@ -118,12 +130,17 @@ def _stability(args: argparse.Namespace) -> int:
     try:
         if args.seconds <= 0:
             raise PhysicsInputError(f"--seconds {args.seconds}: give a positive duration in seconds")
+        if args.xpbd_iterations is not None and args.xpbd_iterations < 1:
+            raise PhysicsInputError(f"--xpbd-iterations {args.xpbd_iterations}: give at least 1")
         cfg = StabilityConfig(seconds=args.seconds, solver=args.solver)
+        if args.xpbd_iterations is not None:
+            cfg = replace(cfg, iterations=args.xpbd_iterations)
         report = stability(str(args.scene), cfg, cross_check=cross, progress=_Progress(f"stability {args.scene}"))
         alone = stability_each_alone(str(args.scene), cfg) if args.alone else None
     except PhysicsInputError as exc:
         return _fail("stability", exc)
     data = report.to_dict()
+    data["xpbd_iterations"] = cfg.iterations
     if alone is not None:
         data["alone"] = alone.to_dict()
     if args.json:
