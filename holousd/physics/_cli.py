@@ -154,7 +154,8 @@ def _stability(args: argparse.Namespace) -> int:
     # "stable bodies %": of this scene's rigid bodies (holousd eval's Stable% is of the ground truth's objects)
     n = len(report.objects)
     stable = sum(o.stable for o in report.objects)
-    print(f"stable bodies ({report.solver}, {report.seconds:g} s): {stable} of {n}, {report.stable_pct:.1f}%")
+    count = f", {cfg.iterations} iterations" if args.xpbd_iterations is not None and report.solver == "xpbd" else ""
+    print(f"stable bodies ({report.solver}{count}, {report.seconds:g} s): {stable} of {n}, {report.stable_pct:.1f}%")
     if report.cross_check is not None:
         cc = report.cross_check
         cc_stable = sum(o.stable for o in cc.objects)
