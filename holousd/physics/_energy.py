@@ -60,7 +60,7 @@ def e_touch(source: str | os.PathLike[str] | Usd.Stage, path: str | None = None)
     """
     import trimesh
 
-    from holousd.geometry._contact import with_tree
+    from holousd.geometry._contact import queryable
 
     stage = _scene.open_stage(source)
     if path is not None:
@@ -77,7 +77,7 @@ def e_touch(source: str | os.PathLike[str] | Usd.Stage, path: str | None = None)
         cp, cf = _scene.world_mesh(stage, p)
         pp, pf = _scene.world_mesh(stage, parent)
         child = trimesh.Trimesh(cp, cf, process=False)
-        parent_mesh = with_tree(trimesh.Trimesh(pp, pf, process=False))
+        parent_mesh = queryable((pp, pf))
         n = min(2000, max(200, 20 * len(cf)))
         samples, _ = trimesh.sample.sample_surface_even(child, n, seed=0) if len(cf) else (np.empty((0, 3)), None)
         query = np.concatenate([cp, np.asarray(samples).reshape(-1, 3)])  # [Q, 3]

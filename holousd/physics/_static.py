@@ -100,7 +100,7 @@ def static_stability(body: Mesh, support: Mesh | float | None, *, friction: floa
     (metres, with ``flatten``): where that flat top would lie more than ``max_gap`` below the body's bottom (every
     ray under it falls through the support), it lies this far below the bottom instead (the set-up moves a body
     down onto its support by at most half its ``max_shift``, and takes the flat top no deeper)."""
-    from holousd.geometry._contact import area_samples, mass_properties
+    from holousd.geometry._contact import area_samples, mass_properties, queryable
 
     points, faces = np.asarray(body[0], float), np.asarray(body[1], np.int64)
     none = StaticVerdict(stands=False, margin_m=-np.inf, gap_m=np.inf, tilt_deg=0.0, contacts=0)
@@ -120,13 +120,9 @@ def static_stability(body: Mesh, support: Mesh | float | None, *, friction: floa
         surface_z = np.full(len(low), float(support))
         hit = np.ones(len(low), bool)
     else:
-        import trimesh
         from trimesh.ray.ray_triangle import RayMeshIntersector
 
-        from holousd.geometry._contact import with_tree
-
-        target = with_tree(trimesh.Trimesh(np.asarray(support[0], float), np.asarray(support[1], np.int64),
-                                           process=False))  # fmt: skip
+        target = queryable(support)
         origins = low + np.array([0.0, 0.0, ray_start])
         where, index, face = RayMeshIntersector(target).intersects_location(
             origins, np.tile([0.0, 0.0, -1.0], (len(low), 1)), multiple_hits=False)  # fmt: skip

@@ -99,15 +99,14 @@ def object_evidence(scene: SceneGraph, obs: Observations, name: str, *, max_fram
     height = None
     below = neighbours.get(support) if support is not None else None
     if below is not None and len(below.faces):  # the support's surface under the object: rays cast straight down
-        import trimesh
         from trimesh.ray.ray_triangle import RayMeshIntersector
 
-        from holousd.geometry._contact import with_tree
+        from holousd.geometry._contact import queryable
 
         bottom = float(world[:, 2].min())
         xs, ys = (np.linspace(world[:, a].min(), world[:, a].max(), 7) for a in (0, 1))
         origins = np.stack([*np.meshgrid(xs, ys, indexing="ij"), np.full((7, 7), bottom + margin)], -1).reshape(-1, 3)
-        below_mesh = with_tree(trimesh.Trimesh(below.points, below.faces, process=False))
+        below_mesh = queryable((below.points, below.faces))
         hits, rays, faces = RayMeshIntersector(below_mesh).intersects_location(
             origins, np.tile([0.0, 0.0, -1.0], (len(origins), 1)), multiple_hits=True)  # fmt: skip
         hits, rays = np.asarray(hits, float).reshape(-1, 3), np.asarray(rays, int)
