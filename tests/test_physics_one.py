@@ -1315,6 +1315,31 @@ def test_colliders_still_overlapping_are_clipped_apart_and_the_mesh_follows() ->
     assert _penetration("box", kept, []) == pytest.approx(0.03, abs=2e-4) and kept["box"].edits == ()
 
 
+def test_every_overlapping_pair_of_parts_is_clipped_however_many_there_are() -> None:
+    """bench_00 (phone): two 50-part balls pressed together overlapped in 46 pairs of parts; a budget of 32 clips
+    per pair of bodies left 14 of them, up to 3.5 mm deep. Here 40 pairs, each 1 mm deep: all are clipped apart."""
+    from holousd.stages._physics_one import _Body, _penetration, _unclasped, _world_parts
+
+    def cells(x0: float, x1: float) -> list[MeshData]:  # 8 x 5 columns side by side over the y-z face
+        boxes = [_box((x0, 0.04 * i, 0.06 * k), (x1, 0.04 * (i + 1), 0.06 * (k + 1)))
+                 for i in range(8) for k in range(5)]  # fmt: skip
+        return [MeshData(points=p, faces=f) for p, f in boxes]
+
+    def body(name: str, mesh: tuple, parts: list[MeshData]) -> _Body:
+        pose = Pose(translation=np.zeros(3))
+        return _Body(name=name, mesh=MeshData(points=mesh[0], faces=mesh[1]), sdf=None, pose=pose, fit_pose=pose,
+                     collider=("decomposition", parts, 0.001))  # fmt: skip
+
+    left = body("left", _box((0.0, 0.0, 0.0), (0.1, 0.32, 0.3)), cells(0.0, 0.1005))  # its parts 0.5 mm past
+    right = body("right", _box((0.1005, 0.0, 0.0), (0.2, 0.32, 0.3)), cells(0.0995, 0.2))  # and 0.5 mm short
+    bodies = {"left": left, "right": right}
+    pairs = [(p, q) for p in _world_parts(left) for q in _world_parts(right) if overlap(p, q).volume_m3 > 0.0]
+    assert len(pairs) == 40 and _penetration("left", bodies, []) == pytest.approx(0.001, abs=1e-5)
+    out = _unclasped(bodies, PhysicsSetupConfig())
+    assert _penetration("left", out, []) == 0.0 and _penetration("right", out, []) == 0.0
+    assert all(overlap(p, q).volume_m3 == 0.0 for p in _world_parts(out["left"]) for q in _world_parts(out["right"]))
+
+
 def _set_up_on_a_dented_top(tmp_path: Path, half: float, floor: float, mug: tuple[np.ndarray, np.ndarray]):  # noqa: ANN202
     """A box whose top (0.76 m) is dented ``2 * half`` wide down to ``floor`` under ``mug``, set up: (scene, records,
     (hits, rays) of rays cast down on the box's mesh over the mug's 8 cm footprint, rays cast)."""
