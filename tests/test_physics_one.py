@@ -1377,3 +1377,25 @@ def test_a_top_dented_under_a_keel_is_cut_flat_at_the_surface_seen_around_it(tmp
     assert len(rays) == cast and hits[:, 2].min() > 0.7585, np.round(hits[:, 2], 4)  # the dent is filled
     assert _world(scene, "mug")[:, 2].min() > 0.7585  # the keel is cut at the top
     assert rec["mug"].penetration_m < 1e-3 and np.linalg.norm(rec["mug"].settled_m) < 1e-3
+
+
+def test_a_field_cut_to_its_parts_union_is_measured_only_where_it_changes_and_comes_out_the_same() -> None:
+    """within_convex's field: max(field, least of the parts' plane distances), each part measured only where the
+    union so far lies above the field; the numbers equal measuring every sample with every part (a flat part,
+    which has no hull, is skipped either way)."""
+    from scipy.spatial import ConvexHull
+
+    from holousd.stages._physics_one import _max_plane_distance, _within_union
+
+    rng = np.random.default_rng(5)
+    grid = np.stack(np.meshgrid(*[np.linspace(-0.5, 0.5, 41)] * 3, indexing="ij"), axis=-1).reshape(-1, 3)
+    field = np.linalg.norm(grid, axis=1) - 0.3
+    parts = [(rng.normal(size=(30, 3)) * 0.08 + rng.normal(size=3) * 0.15, None) for _ in range(12)]
+    parts.insert(3, (np.column_stack([rng.random((10, 2)), np.zeros(10)]), None))  # flat: no hull
+    union = np.full(len(grid), np.inf)
+    for p, _ in parts[:3] + parts[4:]:
+        union = np.minimum(union, _max_plane_distance(grid, ConvexHull(p).equations))
+    expected = np.maximum(field, union)
+    got = _within_union(field, grid, parts)
+    assert np.array_equal(got, expected)
+    assert np.any(got > field) and np.any(got == field)  # the parts cut the field somewhere, and not everywhere
