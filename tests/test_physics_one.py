@@ -1379,12 +1379,14 @@ def test_a_top_dented_under_a_keel_is_cut_flat_at_the_surface_seen_around_it(tmp
     assert rec["mug"].penetration_m < 1e-3 and np.linalg.norm(rec["mug"].settled_m) < 1e-3
 
 
-def test_a_field_cut_to_its_parts_union_is_measured_only_where_it_changes_and_comes_out_the_same() -> None:
+def test_a_field_cut_to_its_parts_union_is_measured_only_where_it_changes_and_comes_out_the_same(
+        monkeypatch: pytest.MonkeyPatch) -> None:
     """within_convex's field: max(field, least of the parts' plane distances), each part measured only where the
     union so far lies above the field; the numbers equal measuring every sample with every part (a flat part,
     which has no hull, is skipped either way)."""
     from scipy.spatial import ConvexHull
 
+    from holousd.stages import _physics_one
     from holousd.stages._physics_one import _max_plane_distance, _within_union
 
     rng = np.random.default_rng(5)
@@ -1396,6 +1398,18 @@ def test_a_field_cut_to_its_parts_union_is_measured_only_where_it_changes_and_co
     for p, _ in parts[:3] + parts[4:]:
         union = np.minimum(union, _max_plane_distance(grid, ConvexHull(p).equations))
     expected = np.maximum(field, union)
+    measured = []
+
+    def counted(points: np.ndarray, planes: np.ndarray) -> np.ndarray:
+        measured.append(len(points))
+        return _max_plane_distance(points, planes)
+
+    monkeypatch.setattr(_physics_one, "_max_plane_distance", counted)
     got = _within_union(field, grid, parts)
     assert np.array_equal(got, expected)
     assert np.any(got > field) and np.any(got == field)  # the parts cut the field somewhere, and not everywhere
+    assert measured[0] == len(grid) and sum(measured) < 0.8 * len(grid) * len(measured)  # not every point (61%)
+    # a point's distance does not depend on how many are measured with it (numpy's one-row product rounds otherwise)
+    planes = ConvexHull(parts[0][0]).equations
+    alone = np.concatenate([_max_plane_distance(grid[i : i + 1], planes) for i in range(0, len(grid), 997)])
+    assert np.array_equal(alone, _max_plane_distance(grid, planes)[::997])

@@ -409,9 +409,12 @@ def _max_plane_distance(points: np.ndarray, planes: np.ndarray, chunk: int = 327
     out = np.empty(len(points))
     normals, offsets = planes[:, :3].T, planes[:, 3]
     for start in range(0, len(points), chunk):
-        block = points[start : start + chunk] @ normals
+        rows = points[start : start + chunk]
+        # one row would take numpy's vector-matrix product, which can round the last bit otherwise than the
+        # matrix product every other block takes: a point's distance would depend on how many were measured
+        block = (rows if len(rows) > 1 else np.repeat(rows, 2, axis=0)) @ normals
         block += offsets
-        out[start : start + chunk] = block.max(axis=1)
+        out[start : start + chunk] = block.max(axis=1)[: len(rows)]
     return out
 
 
