@@ -48,8 +48,8 @@ def add_commands(subparsers: argparse._SubParsersAction) -> None:
         default=None,
         metavar="N",
         help="XPBD constraint iterations per step, for experiments (default: the protocol's, "
-        f"{StabilityConfig.iterations}); more converge contacts further: a light object resting on a heavy one can "
-        "chatter at the protocol's count",
+        f"{StabilityConfig.iterations}); fewer converge contacts less: at 8 a light object resting on a heavy one "
+        "can chatter",
     )
     stab.add_argument("--alone", action="store_true", help="also test each object alone on its static support chain")
     stab.set_defaults(handler=_stability)
