@@ -49,7 +49,7 @@ class StabilityConfig:
     iterations: int = 16
     """XPBD constraint iterations per step. At 8, bench_00 (fast)'s book_5 (0.58 kg on a 412 kg sofa) chattered,
     bouncing 2 mm every frame, and turned 8.2 deg; at 16 it holds (0.6 deg), and 32 gives 16's verdicts on every
-    bench/fast scene. On the 55 reference scenes and the demo every other object's verdict is the same at 8 and 16;
+    bench/fast scene. On the 60 reference scenes and the demo every other object's verdict is the same at 8 and 16;
     XPBD's verdict costs 15-30% more."""
     xpbd_substeps: int = 4
     """XPBD steps per protocol step (XPBD then runs at ``hz * xpbd_substeps``). At 240 Hz XPBD's contacts jitter
