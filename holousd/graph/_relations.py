@@ -25,6 +25,7 @@ import numpy as np
 
 from holousd._sampling import evenly_spaced
 from holousd.geometry._contact import inside as inside_mesh
+from holousd.geometry._contact import queryable
 
 __all__ = ["RelationConfig", "Relations", "infer_relations", "push_out_of", "settle_offsets"]
 
@@ -122,13 +123,6 @@ class Relations:
         return lines
 
 
-def _trimesh(mesh: Mesh):  # noqa: ANN202
-    """A trimesh of ``mesh`` for ray and closest-point queries (its triangle tree built at once)."""
-    from holousd.geometry._contact import queryable
-
-    return queryable(mesh)
-
-
 def _contact_points(mesh: Mesh, config: RelationConfig) -> np.ndarray:
     """[K, 3] points of the mesh's underside within ``bottom_band`` of its lowest point: its low vertices and a
     regular grid over the faces lying in the band (a box's bottom has vertices at its corners only; where it
@@ -177,7 +171,7 @@ def infer_relations(meshes: dict[str, Mesh], config: RelationConfig | None = Non
 
     config = config or RelationConfig()
     names = [n for n, m in meshes.items() if len(m[0]) and len(m[1])]
-    tms = {n: _trimesh(meshes[n]) for n in names}
+    tms = {n: queryable(meshes[n]) for n in names}
     bounds = {n: tms[n].bounds for n in names}  # [2, 3]
     intersectors = {n: RayMeshIntersector(tms[n]) for n in names}
     result = Relations()
@@ -439,7 +433,7 @@ def settle_offsets(meshes: dict[str, Mesh], background: Mesh | None, relations: 
             bottom = float(pts[:, 2].min())
             ppts, pfaces = surfaces[parent]
             ppts = np.asarray(ppts, float) + np.array([0.0, 0.0, shift.get(parent, 0.0)])
-            tm = _trimesh((ppts, pfaces))
+            tm = queryable((ppts, pfaces))
             origins = low.copy()
             origins[:, 2] = bottom + max_offset
             locations, _, _ = RayMeshIntersector(tm).intersects_location(
@@ -466,7 +460,7 @@ def push_out_of(mesh: Mesh, solid: Mesh, *, samples: int = 400, clearance: float
     """
     import trimesh
 
-    solid_tm = _trimesh(solid)
+    solid_tm = queryable(solid)
     if not solid_tm.is_watertight:
         return np.zeros(3)
     pts = np.asarray(mesh[0], float)

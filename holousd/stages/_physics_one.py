@@ -369,15 +369,21 @@ class _Body:
 def _part_distances(sdf: SdfField, parts: list[tuple[np.ndarray, np.ndarray]]) -> Iterator[np.ndarray]:
     """For each convex part (object coordinates) with a hull, [X*Y*Z] signed plane distances of the SDF's
     samples to it (max over its hull's face planes: < 0 inside, exact there); degenerate parts are skipped."""
+    grid = _grid_points(sdf)
+    for planes in _part_planes(parts):
+        yield _max_plane_distance(grid, planes)
+
+
+def _part_planes(parts: list[tuple[np.ndarray, np.ndarray]]) -> Iterator[np.ndarray]:
+    """[H, 4] face planes (``n . x + d <= 0`` inside) of each convex part with a hull; degenerate parts skipped."""
     from scipy.spatial import ConvexHull, QhullError
 
-    grid = _grid_points(sdf)
     for p, _ in parts:
         try:
-            planes = ConvexHull(p).equations  # [H, 4]: n . x + d <= 0 inside
+            planes = ConvexHull(p).equations
         except (QhullError, ValueError):
             continue
-        yield _max_plane_distance(grid, planes)
+        yield planes
 
 
 def _within_union(values: np.ndarray, points: np.ndarray, parts: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
@@ -386,19 +392,13 @@ def _within_union(values: np.ndarray, points: np.ndarray, parts: list[tuple[np.n
     where the union of the parts before it still lies above ``values``: elsewhere the answer is ``values``
     whatever the others give (the same numbers as measuring every point, a fraction of the work: most samples of
     a grid around an object are outside it by about as much as they are outside its nearest part)."""
-    from scipy.spatial import ConvexHull, QhullError
-
     union = np.full(len(values), np.inf)
     open_ = np.arange(len(values))  # where the union so far lies above the values
-    for p, _ in parts:
-        if not len(open_):
-            break
-        try:
-            planes = ConvexHull(p).equations  # [H, 4]: n . x + d <= 0 inside
-        except (QhullError, ValueError):
-            continue
+    for planes in _part_planes(parts):
         union[open_] = np.minimum(union[open_], _max_plane_distance(points[open_], planes))
         open_ = open_[union[open_] > values[open_]]
+        if not len(open_):
+            break
     return np.maximum(values, union)
 
 
@@ -492,10 +492,8 @@ def _ray_target(mesh: tuple[np.ndarray, np.ndarray]):  # noqa: ANN202 - a trimes
     2400 on bench_00, whose set-up spent 22 s of its 264 building triangle trees). The last 16 are kept."""
     from trimesh.ray.ray_triangle import RayMeshIntersector
 
-    from holousd.graph._relations import _trimesh
-
     points, faces = np.ascontiguousarray(mesh[0], np.float64), np.ascontiguousarray(mesh[1], np.int64)
-    return _by_content(_RAY_TARGETS, points, faces, lambda: RayMeshIntersector(_trimesh((points, faces))), 16)
+    return _by_content(_RAY_TARGETS, points, faces, lambda: RayMeshIntersector(queryable((points, faces))), 16)
 
 
 def _first_hits_down(mesh: tuple[np.ndarray, np.ndarray], origins: np.ndarray,
