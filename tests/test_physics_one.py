@@ -278,6 +278,33 @@ def test_a_lumpy_convex_object_becomes_its_hull(tmp_path: Path) -> None:
     assert rec.collider == "decomposition" and not any(e.startswith("convexify:hull") for e in rec.edits)
 
 
+def test_a_smaller_hull_that_no_longer_meets_its_neighbour_leaves_the_mesh_whole(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
+    """A part made smaller for the hull-vertex limit may no longer meet the part beside it; cutting the mesh to the
+    smaller parts then leaves the piece it holds apart, a crumb that goes with the cut, and its part 29 cm from
+    the mesh (a coffee table made the union of its parts lost a leg so). The mesh stays whole instead, and the
+    parts stay on it."""
+    from holousd.stages import _physics_one
+
+    table = _union(_box((-0.2, -0.2, 0.3), (0.2, 0.2, 0.34)), _box((-0.01, -0.01, 0.0), (0.01, 0.01, 0.3)))
+
+    def smaller(points: np.ndarray, limit: int) -> tuple[np.ndarray, np.ndarray, float]:
+        hull = trimesh.Trimesh(points).convex_hull
+        p = np.asarray(hull.vertices, float)
+        if p[:, 2].max() < 0.31:  # the leg: 5 mm short of the top and of the floor
+            p[:, 2] = np.clip(p[:, 2], p[:, 2].min() + 0.005, p[:, 2].max() - 0.005)
+            hull = trimesh.Trimesh(p).convex_hull
+        return np.asarray(hull.vertices, float), np.asarray(hull.faces), 0.005
+
+    monkeypatch.setattr(_physics_one, "limited_hull", smaller)
+    scene = _scene(tmp_path, {"table": table})
+    (rec,) = setup_physics(scene, PhysicsSetupConfig(max_hull_vertices=4)).objects
+    mesh = trimesh.Trimesh(*_world_mesh(scene, "table"))
+    assert rec.collider == "decomposition" and any(e.startswith("hullVertices:5.0mm") for e in rec.edits), rec.edits
+    assert mesh.bounds[0, 2] < 0.002 and mesh.volume == pytest.approx(trimesh.Trimesh(*table).volume, rel=0.02)
+    assert rec.collider_reach_m <= 0.005
+
+
 def test_a_limited_hull_keeps_its_own_vertices_and_says_how_far_it_left_the_rest() -> None:
     from scipy.spatial import ConvexHull
 
