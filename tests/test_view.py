@@ -159,22 +159,29 @@ def test_chromium_shows_the_scene_on_the_page(example_copy: Path, tmp_path: Path
     from holousd.view import ViewServer
 
     server = ViewServer(ViewSession(example_copy), port=0)
+    colours = np.zeros((0, 3))
     try:
-        shot = tmp_path / "page.png"
-        start = time.perf_counter()
-        subprocess.run([browser, "--headless", "--no-sandbox", "--use-gl=angle", "--use-angle=swiftshader",
-                        "--enable-unsafe-swiftshader", "--disable-background-networking", "--disable-component-update",
-                        "--disable-sync", "--no-first-run", f"--user-data-dir={tmp_path / 'profile'}",
-                        "--window-size=800,600", "--virtual-time-budget=15000", f"--screenshot={shot}",
-                        server.url], check=True, capture_output=True, timeout=180)  # fmt: skip
-        assert shot.is_file(), f"no screenshot after {time.perf_counter() - start:.0f} s"
+        # a second try with more virtual time: on a loaded machine (the suite beside two benchmarks) SwiftShader had
+        # drawn 43 colours of the view when the first budget ran out; a page without the scene fails both
+        for k, budget in enumerate((15000, 60000)):
+            shot = tmp_path / f"page{k}.png"
+            start = time.perf_counter()
+            subprocess.run([browser, "--headless", "--no-sandbox", "--use-gl=angle", "--use-angle=swiftshader",
+                            "--enable-unsafe-swiftshader", "--disable-background-networking",
+                            "--disable-component-update", "--disable-sync", "--no-first-run",
+                            f"--user-data-dir={tmp_path / f'profile{k}'}", "--window-size=800,600",
+                            f"--virtual-time-budget={budget}", f"--screenshot={shot}", server.url],
+                           check=True, capture_output=True, timeout=180)  # fmt: skip
+            assert shot.is_file(), f"no screenshot after {time.perf_counter() - start:.0f} s"
+            image = np.asarray(Image.open(shot).convert("RGB"), dtype=np.float64)
+            # The 3D view (left of the control panel) shows the room and the objects: many distinct colours, not
+            # one blank background.
+            view = image[60:-60, 40:image.shape[1] // 2]
+            colours = np.unique((view // 8).reshape(-1, 3), axis=0)
+            if len(colours) > 50:
+                break
     finally:
         server.close()
-    image = np.asarray(Image.open(shot).convert("RGB"), dtype=np.float64)
-    # The 3D view (left of the control panel) shows the room and the objects: many distinct colours, not one
-    # blank background.
-    view = image[60:-60, 40:image.shape[1] // 2]
-    colours = np.unique((view // 8).reshape(-1, 3), axis=0)
     assert len(colours) > 50, f"the page shows {len(colours)} colours in its 3D view: is the scene there?"
 
 
