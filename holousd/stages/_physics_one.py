@@ -1409,19 +1409,19 @@ def _within_vertex_limit(bodies: dict[str, _Body], config: PhysicsSetupConfig) -
             trimmed = replace(trimmed, mesh=_drop_degenerate(trimmed.mesh))
             if not _closed(trimmed.mesh):
                 trimmed = body
-        if trimmed is body:  # nothing of the mesh outside the parts, or a cut that would open it: recorded, and
-            # the reach as measured before (the smaller parts reach no farther)
-            out[name] = replace(body, edits=(*body.edits, edit), collider=(kind, limited, reach))
-            continue
-        mesh = (trimmed.mesh.points, trimmed.mesh.faces)
-        left = collider_reach([(p.points, p.faces) for p in limited], mesh, seed=config.seed)
-        if left > reach + 1e-3:  # the smaller parts no longer meet, and the cut dropped the piece one of them
+        if trimmed is not body:
+            mesh = (trimmed.mesh.points, trimmed.mesh.faces)
+            left = collider_reach([(p.points, p.faces) for p in limited], mesh, seed=config.seed)
+            if left <= reach + 1e-3:
+                out[name] = replace(trimmed, collider=(kind, limited, left))
+                continue
+            # farther out than before: the smaller parts no longer meet, and the cut dropped the piece one of them
             # holds as a crumb (hard/top_only (phone)'s table lost 5.6 cm^3 so, a part left 4.8 cm from its mesh;
-            # a coffee table made the union of its parts lost a leg, its part 35 cm from the mesh): the mesh stays
-            # whole, a few millimetres outside the smaller parts
-            out[name] = replace(body, edits=(*body.edits, edit), collider=(kind, limited, reach))
-            continue
-        out[name] = replace(trimmed, collider=(kind, limited, left))
+            # a coffee table made the union of its parts lost a leg, its part 35 cm from the mesh)
+        # nothing of the mesh outside the parts, a cut that would open it, or one that would drop a piece: the mesh
+        # stays whole (a few millimetres outside the smaller parts), recorded, and the reach as measured before (the
+        # smaller parts reach no farther)
+        out[name] = replace(body, edits=(*body.edits, edit), collider=(kind, limited, reach))
     return out
 
 
