@@ -90,8 +90,9 @@ def test_where_depth_is_missing_another_objects_pixels_may_hide_the_candidate(tr
                                                                                capture: Path) -> None:
     """A phone's depth has holes, and none at depth edges, where an occluder's outline lies. A pixel of another
     object without depth is treated as a frame without depth treats it: it may lie in front of the candidate, and
-    is not counted against the candidate's silhouette. The table's IoU with the objects on it left without depth
-    stays what it is with their depth measured, 0.97 (counted against it: 0.89)."""
+    is not counted against the candidate's silhouette. The table's IoU with the objects around it left without
+    depth (1.0: those behind it are left out too) does not fall below its IoU with their depth measured, 0.97
+    (counted against it: 0.89)."""
     table = object_evidence(truth, load(capture), "table_1")
     truth_shape = Candidate(proposer="truth", seed=0, mesh=table.mesh)
     full = observation_energy(truth_shape, table)

@@ -197,11 +197,12 @@ def observation_energy(candidate: Candidate, evidence: ObjectEvidence, *, margin
         if not cand.any():
             continue
         mine = frame.labels == evidence.instance_id
+        other = ~mine & (frame.labels != 0)  # another object's pixels: it may be in front
         if frame.depth is not None:
             d = frame.depth
             measured = d > 0
-            # something observed in front of the candidate; where nothing was measured, another object's pixels may be
-            hidden = ~mine & ((measured & (d < zbuf - margin)) | (~measured & (frame.labels != 0)))
+            # something observed in front of the candidate; where nothing was measured, as in a frame without depth
+            hidden = (~mine & measured & (d < zbuf - margin)) | (other & ~measured)
             beyond = cand & measured & (d > zbuf + margin)  # saw past it: to what is behind, or its own far side
             seen = beyond | (cand & ~measured & (frame.labels == 0))
             both = cand & mine & measured & ~hidden
@@ -209,7 +210,7 @@ def observation_energy(candidate: Candidate, evidence: ObjectEvidence, *, margin
                 residual_sum += float(np.minimum(np.abs(zbuf[both] - d[both]), depth_scale).sum())  # robust: capped
                 residual_n += int(both.sum())
         else:
-            hidden = ~mine & (frame.labels != 0)  # another object's pixels: it may be in front
+            hidden = other
             seen = cand & (frame.labels == 0)
         shown = cand & ~hidden
         inter += int((shown & mine).sum())
