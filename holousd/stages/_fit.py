@@ -553,8 +553,7 @@ segmenter's masks are a pixel or two off there)."""
 EXTENT_CONFIRM_M = 0.02
 """How far (metres) the unconfirmed silhouette points must hold a side of an instance's extent out before the side
 moves in to the rest: closer, the TSDF's truncation and the refinement settle it, and exact masks and depth
-(synth's clean captures) leave the extent as it was: on every bench and hard scene, fast and default, and the demo,
-fast, even dropping every unconfirmed point of the tails would move no side more than 1.6 cm."""
+(synth's clean captures: under 1.6 cm on every bench and hard scene and the demo) leave the extent as it was."""
 
 
 def _confirmed_sides(cloud: np.ndarray, owner: np.ndarray, edge: np.ndarray, views: Views, k: int,
