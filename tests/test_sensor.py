@@ -286,15 +286,12 @@ def test_an_instance_extent_does_not_reach_into_the_space_it_hides_on_a_segmente
         lo, hi = exact[k][:2]
         return np.concatenate([lo[:2] - e[0][:2], e[1][:2] - hi[:2]])
 
-    wide_before = wide_after = 0.0
+    far = 0
     for k in ids:
         assert np.all(out(after[k]) <= out(before[k]) + 1e-9)  # a side only moves in
         assert out(after[k]).min() > -0.02, (k, out(after[k]))  # and not into the object
         wide = out(before[k]) > 0.1
-        wide_before += out(before[k])[wide].sum()
-        wide_after += out(after[k])[wide].sum()
-    # the sides 10 cm to 1.3 m out: back within two pixels' footprint (96x72 frames: about 2.5 cm a pixel at 2 m),
-    # but where the dropped points lie on the plane of points kept beside them, which keeps them (one side 84 -> 78
-    # cm, another 53 -> 24 cm: the price of keeping a cabinet's side seen edge-on beside a wall)
-    assert wide_after < 0.35 * wide_before, (wide_before, wide_after)
-    assert wide_before > 2.0  # the capture has the defect: six sides 3.3 m out in sum without the check
+        far += int(wide.sum())
+        # back to within two pixels' footprint (96x72 frames: about 2.5 cm a pixel at 2 m)
+        assert np.all(out(after[k])[wide] < 0.05), (k, out(before[k]), out(after[k]))
+    assert far >= 4  # the capture has the defect: sides 10 cm to 1.3 m out without the check

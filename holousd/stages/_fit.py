@@ -567,45 +567,21 @@ def _confirmed_sides(cloud: np.ndarray, owner: np.ndarray, edge: np.ndarray, vie
     The space an object hides from every frame is where the depth of its silhouette pixels lands when the mask
     is a pixel too wide or the depth coarser than the mask (the phone capture's 8 cm box reached 17 cm back
     over the book behind it, and the fusion filled everything it hid up to there). A side of the object seen in
-    one frame only is held by the pixels inside its silhouette, which are kept, and so is what continues the
-    surface of the points kept. On bench/fast (phone), the objects' sides reach 156-319 cm in sum outside their
-    true boxes a scene (and 5-29 cm inside); moved in, 110-289 cm (5-40 cm inside); hard/fast (phone): 48-128
-    and 3-17 cm, moved in 45-113 and 3-19."""
+    one frame only is held by the pixels inside its silhouette, which are kept. On bench/fast (phone), the
+    objects' sides reach 156-319 cm in sum outside their true boxes a scene (and 5-29 cm inside); moved in,
+    110-265 cm (7-43 cm inside; without the pixel added back, 99-234 and 15-50)."""
     a, b = np.percentile(cloud[:, :2], 2.0, axis=0), np.percentile(cloud[:, :2], 98.0, axis=0)
     tail = edge & np.any((cloud[:, :2] < a) | (cloud[:, :2] > b), axis=1)
     if not tail.any():
         return lo, hi
     drop = np.zeros(len(cloud), bool)
     drop[tail] = unconfirmed_points(cloud[tail], owner[tail], views, k, check)
-    if not drop.any():
-        return lo, hi
-    # what continues the surface of the points kept (within a centimetre or a pixel of their plane) stays: the
-    # back of a cabinet's side, seen edge-on beside the wall it stands against, is a strip of silhouette pixels the
-    # other frames label as the wall (hard/against_wall (phone): 13 cm of the cabinet cut without this, 2.4 with)
-    at = np.flatnonzero(drop)
-    drop[at[_on_surface(cloud[~drop], cloud[at], max(0.01, pixel))]] = False
     rest = cloud[~drop]
     lo, hi = lo.copy(), hi.copy()
     lo2, hi2 = np.percentile(rest[:, :2], 0.2, axis=0) - pixel, np.percentile(rest[:, :2], 99.8, axis=0) + pixel
     lo[:2] = np.where(lo2 - lo[:2] > EXTENT_CONFIRM_M, lo2, lo[:2])
     hi[:2] = np.where(hi[:2] - hi2 > EXTENT_CONFIRM_M, hi2, hi[:2])
     return lo, hi
-
-
-def _on_surface(surface: np.ndarray, points: np.ndarray, tol: float, neighbours: int = 12) -> np.ndarray:
-    """[P] which ``points`` lie within ``tol`` of the plane through their ``neighbours`` nearest ``surface`` points
-    (least squares: the plane of a flat neighbourhood; across an edge or a corner it passes between the faces)."""
-    from scipy.spatial import cKDTree
-
-    if len(surface) < neighbours or len(points) == 0:
-        return np.zeros(len(points), bool)
-    _, idx = cKDTree(surface).query(points, k=neighbours)
-    near = surface[idx]  # [P, n, 3]
-    centre = near.mean(axis=1)
-    spread = near - centre[:, None]
-    _, vectors = np.linalg.eigh(np.einsum("pni,pnj->pij", spread, spread))
-    normal = vectors[:, :, 0]  # the direction of least spread
-    return np.abs(np.einsum("pi,pi->p", points - centre, normal)) <= tol
 
 
 def _silhouette_width(views: Views, fusion: np.ndarray, k: int, centre: np.ndarray) -> float:
