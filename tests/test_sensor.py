@@ -258,3 +258,43 @@ def test_an_instance_extent_drops_a_fragment_two_frames_share_that_the_others_se
     lo, hi = clean.min(axis=0) - 0.04, clean.max(axis=0) + 0.04
     assert np.all((kept >= lo) & (kept <= hi))  # the fragment is gone: the other frames see the wall there
     assert len(kept) >= 0.99 * len(clean)
+
+
+def test_an_instance_extent_does_not_reach_into_the_space_it_hides_on_a_segmenters_masks(tmp_path: Path) -> None:
+    from holousd.geometry import Views
+    from holousd.stages._fit import _extents_metric, _Frames
+
+    obs, views = _stack_capture(tmp_path)
+    ids = [int(k) for k in np.unique(views.labels[views.labels > 0])]
+    n = len(obs)
+
+    def extents(labels: np.ndarray, confirm: bool) -> dict[int, tuple]:
+        v = Views(intrinsics=obs.intrinsics, poses=obs.poses, labels=labels, depth=views.depth)
+        frames = _Frames(index=np.arange(n), views=v, rgb=np.zeros((n, *labels.shape[1:], 3), np.uint8),
+                         normals=None, depth_raw=views.depth)  # fmt: skip
+        return _extents_metric(frames, np.arange(n), ids, confirm=confirm)
+
+    exact = extents(views.labels, confirm=False)
+    checked = extents(views.labels, confirm=True)
+    assert all(np.array_equal(np.stack(exact[k][:2]), np.stack(checked[k][:2])) for k in ids)  # exact masks: as was
+    # the phone's segmenter (boundaries a pixel or two off, grown or shrunk per frame, false fragments): its
+    # silhouette pixels carry the depth of what lies beside and behind the object, in the space it hides
+    phone = np.stack([PHONE.mask(views.labels[i], 2, i) for i in range(n)]).astype(np.int32)
+    before, after = extents(phone, confirm=False), extents(phone, confirm=True)
+
+    def out(e: tuple) -> np.ndarray:  # how far each horizontal side lies outside the exact masks' extent, metres
+        lo, hi = exact[k][:2]
+        return np.concatenate([lo[:2] - e[0][:2], e[1][:2] - hi[:2]])
+
+    wide_before = wide_after = 0.0
+    for k in ids:
+        assert np.all(out(after[k]) <= out(before[k]) + 1e-9)  # a side only moves in
+        assert out(after[k]).min() > -0.02, (k, out(after[k]))  # and not into the object
+        wide = out(before[k]) > 0.1
+        wide_before += out(before[k])[wide].sum()
+        wide_after += out(after[k])[wide].sum()
+    # the sides 10 cm to 1.3 m out: back within two pixels' footprint (96x72 frames: about 2.5 cm a pixel at 2 m),
+    # but where the dropped points lie on the plane of points kept beside them, which keeps them (one side 84 -> 78
+    # cm, another 53 -> 24 cm: the price of keeping a cabinet's side seen edge-on beside a wall)
+    assert wide_after < 0.35 * wide_before, (wide_before, wide_after)
+    assert wide_before > 2.0  # the capture has the defect: six sides 3.3 m out in sum without the check
