@@ -23,6 +23,7 @@ __all__ = [
     "NEIGHBOURS",
     "Consensus",
     "label_consensus",
+    "near_label_edge",
     "FusionResult",
     "Views",
     "VoxelGrid",
@@ -409,7 +410,7 @@ def label_consensus(views: Views, *, tol_m: float = 0.02, tol_rel: float = 0.02,
 
     def confident(j: int) -> np.ndarray:
         if j not in sure:
-            sure[j] = ~_near_label_edge(views.labels[j], 3)
+            sure[j] = ~near_label_edge(views.labels[j], 3)
         return sure[j]
 
     for i in range(n):
@@ -470,7 +471,7 @@ def _off_surface(labels: np.ndarray, depth: np.ndarray, tol_m: float, tol_rel: f
     those depths' median absolute deviation (a surface seen at a grazing angle changes depth fast from pixel to
     pixel; a few returns from the wall behind a mug's edge do not move the median or the deviation)."""
     h, w = labels.shape
-    near = _near_label_edge(labels, window) & (depth > 0)
+    near = near_label_edge(labels, window) & (depth > 0)
     rows, cols = np.nonzero(near)
     if len(rows) == 0:
         return np.zeros((h, w), bool)
@@ -490,7 +491,7 @@ def _off_surface(labels: np.ndarray, depth: np.ndarray, tol_m: float, tol_rel: f
     return out
 
 
-def _near_label_edge(labels: np.ndarray, size: int) -> np.ndarray:
+def near_label_edge(labels: np.ndarray, size: int) -> np.ndarray:
     """[H, W] pixels whose ``size`` x ``size`` neighbourhood holds more than one label."""
     from scipy.ndimage import maximum_filter, minimum_filter
 

@@ -67,11 +67,11 @@ from holousd.geometry._grid import (
     Consensus,
     Views,
     VoxelGrid,
-    _near_label_edge,
     box_sdf,
     carve_hull,
     fuse_tsdf,
     label_consensus,
+    near_label_edge,
     object_point_mask,
     observed_fraction,
     sample_grid,
@@ -511,7 +511,7 @@ def _extents_metric(frames: _Frames, fusion: np.ndarray, ids: list[int], confirm
     for i in fusion:
         lab = views.labels[i]
         valid = views.depth[i] > 0  # type: ignore[index]
-        edge = _near_label_edge(lab, 2 * SILHOUETTE_PX + 1) if confirm else None
+        edge = near_label_edge(lab, 2 * SILHOUETTE_PX + 1) if confirm else None
         for k in np.unique(lab):
             if k <= 0 or k not in clouds:
                 continue
