@@ -571,8 +571,8 @@ def _confirmed_sides(cloud: np.ndarray, owner: np.ndarray, edge: np.ndarray, vie
     over the book behind it, and the fusion filled everything it hid up to there). A side of the object seen in
     one frame only is held by the pixels inside its silhouette, which are kept, and so is what continues the
     surface of the points kept. On bench/fast (phone), the objects' sides reach 156-319 cm in sum outside their
-    true boxes a scene (and 5-29 cm inside); moved in, 110-289 cm (5-40 cm inside); hard/fast (phone): 48-128
-    and 3-17 cm, moved in 45-113 and 3-19."""
+    true boxes a scene (and 5-29 cm inside); moved in, 112-290 cm (5-40 cm inside); hard/fast (phone): 48-128
+    and 3-17 cm, moved in 43-119 and 3-17 (sides moved by more than 3 cm; at 2 cm: 110-289 and 45-113)."""
     a, b = np.percentile(cloud[:, :2], 2.0, axis=0), np.percentile(cloud[:, :2], 98.0, axis=0)
     tail = edge & np.any((cloud[:, :2] < a) | (cloud[:, :2] > b), axis=1)
     if not tail.any():
@@ -583,7 +583,7 @@ def _confirmed_sides(cloud: np.ndarray, owner: np.ndarray, edge: np.ndarray, vie
         return lo, hi
     # what continues the surface of the points kept (within a centimetre or a pixel of their plane) stays: the
     # back of a cabinet's side, seen edge-on beside the wall it stands against, is a strip of silhouette pixels the
-    # other frames label as the wall (hard/against_wall (phone): 13 cm of the cabinet cut without this, 2.4 with)
+    # other frames label as the wall (hard/against_wall (phone): 13 cm of the cabinet cut without this, 2.4 with: left)
     at = np.flatnonzero(drop)
     drop[at[_on_surface(cloud[~drop], cloud[at], max(0.01, pixel))]] = False
     rest = cloud[~drop]
