@@ -23,7 +23,6 @@ __all__ = [
     "NEIGHBOURS",
     "Consensus",
     "label_consensus",
-    "near_label_edge",
     "FusionResult",
     "Views",
     "VoxelGrid",
@@ -31,12 +30,10 @@ __all__ = [
     "carve_hull",
     "confirmed_points",
     "fuse_tsdf",
-    "object_point_mask",
     "object_points",
     "observed_fraction",
     "sample_grid",
     "signed_distance_from_occupancy",
-    "unconfirmed_points",
 ]
 
 
@@ -410,7 +407,7 @@ def label_consensus(views: Views, *, tol_m: float = 0.02, tol_rel: float = 0.02,
 
     def confident(j: int) -> np.ndarray:
         if j not in sure:
-            sure[j] = ~near_label_edge(views.labels[j], 3)
+            sure[j] = ~_near_label_edge(views.labels[j], 3)
         return sure[j]
 
     for i in range(n):
@@ -471,7 +468,7 @@ def _off_surface(labels: np.ndarray, depth: np.ndarray, tol_m: float, tol_rel: f
     those depths' median absolute deviation (a surface seen at a grazing angle changes depth fast from pixel to
     pixel; a few returns from the wall behind a mug's edge do not move the median or the deviation)."""
     h, w = labels.shape
-    near = near_label_edge(labels, window) & (depth > 0)
+    near = _near_label_edge(labels, window) & (depth > 0)
     rows, cols = np.nonzero(near)
     if len(rows) == 0:
         return np.zeros((h, w), bool)
@@ -491,7 +488,7 @@ def _off_surface(labels: np.ndarray, depth: np.ndarray, tol_m: float, tol_rel: f
     return out
 
 
-def near_label_edge(labels: np.ndarray, size: int) -> np.ndarray:
+def _near_label_edge(labels: np.ndarray, size: int) -> np.ndarray:
     """[H, W] pixels whose ``size`` x ``size`` neighbourhood holds more than one label."""
     from scipy.ndimage import maximum_filter, minimum_filter
 
@@ -538,14 +535,6 @@ def object_points(cloud: np.ndarray, frame: np.ndarray, radius: float, views: Vi
     is seen from several frames (a table's leg on a phone's half-resolution depth: 4 points in 3 frames), and the
     others' votes on it are not to be trusted (a thin leg is seen through on a coarse depth grid, the table's top
     beside a box is the box within the tolerance), so the vote decides only for pieces in one or two frames."""
-    return cloud[object_point_mask(cloud, frame, radius, views, label, check, min_share=min_share,
-                                   min_frames=min_frames, tol_m=tol_m, tol_rel=tol_rel)]
-
-
-def object_point_mask(cloud: np.ndarray, frame: np.ndarray, radius: float, views: Views, label: int,
-                      check: Sequence[int], *, min_share: float = 0.05, min_frames: int = 3, tol_m: float = 0.02,
-                      tol_rel: float = 0.02) -> np.ndarray:  # fmt: skip
-    """[P] the points of ``cloud`` that :func:`object_points` keeps."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
@@ -554,7 +543,7 @@ def object_point_mask(cloud: np.ndarray, frame: np.ndarray, radius: float, views
     keep = _confirmed(cloud, frame, radius)
     pts, frm = cloud[keep], np.asarray(frame)[keep].astype(np.int64)
     if len(pts) < 2:
-        return keep
+        return pts
     cell = radius / 2.0  # cells linked with their 26 neighbours: points up to 1.7 * radius apart join
     keys = np.floor((pts - pts.min(axis=0)) / cell).astype(np.int64) + 1
     dims = keys.max(axis=0) + 2
@@ -596,30 +585,7 @@ def object_point_mask(cloud: np.ndarray, frame: np.ndarray, radius: float, views
             agree += int((sees & (lab == label)).sum())
             against += int((sees & (lab != label) & (lab >= 0)).sum() + through.sum())
         wanted[p] = agree >= against
-    keep[np.flatnonzero(keep)] = wanted[piece]
-    return keep
-
-
-def unconfirmed_points(points: np.ndarray, frame: np.ndarray, views: Views, label: int, check: Sequence[int], *,
-                       tol_m: float = 0.02, tol_rel: float = 0.02) -> np.ndarray:  # fmt: skip
-    """[P] the points of instance ``label`` ([P, 3], each with the [P] frame it came from) that no other frame
-    confirms: of the frames ``check`` but its own, none shows ``label`` where the point projects with depth
-    within ``tol_m + tol_rel * z`` of it, or fewer than a third of those that see it (that depth, or beyond it:
-    seen through) do.
-
-    A segmenter's mask a pixel or two too wide, or a depth map at half the mask's resolution, gives an object's
-    silhouette pixels the depth of what lies behind it: the points fall in the space the object hides from every
-    frame, where no other frame can confirm them (the phone capture's 8 cm box on a table reached 17 cm back over
-    the book behind it). A point of the object's own surface is seen again from the frames beside its own."""
-    own = np.zeros(len(points), np.int32)
-    seen = np.zeros(len(points), np.int32)
-    frame = np.asarray(frame)
-    for j in check:
-        lab, sees, through = _seen_from(views, int(j), points, tol_m, tol_rel)
-        other = frame != int(j)
-        own += other & sees & (lab == label)
-        seen += other & ((sees & (lab >= 0)) | through)
-    return (own == 0) | (3 * own < seen)
+    return pts[wanted[piece]]
 
 
 def carve_hull(

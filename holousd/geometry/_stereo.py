@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from holousd.geometry._grid import near_label_edge
+from holousd.geometry._grid import _near_label_edge
 
 __all__ = ["StereoConfig", "StereoDepth", "consistent", "stereo_depth", "stereo_neighbours"]
 
@@ -234,7 +234,7 @@ def stereo_depth(i: int, rgb: Sequence[np.ndarray], intrinsics: np.ndarray, pose
     keep &= (arg.numpy() > 0) & (arg.numpy() < planes - 1)  # a winner at the sweep's end is out of range
     if labels is not None:
         if config.edge > 0:
-            keep &= ~near_label_edge(np.asarray(labels), 2 * config.edge + 1)
+            keep &= ~_near_label_edge(np.asarray(labels), 2 * config.edge + 1)
     return StereoDepth(depth=np.where(keep, depth, 0.0).astype(np.float32), score=top_n, neighbours=list(neighbours))
 
 

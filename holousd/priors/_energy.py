@@ -23,7 +23,7 @@ without depth: a phone's depth has holes and none at depth edges, where an occlu
 Among an object's candidates the limit is relative (:func:`seen_through_limit`): the fitted shape (``stage1``)
 is never rejected, and its own seen-through share, up to ``max_seen_through`` again, is added to the limit of
 the others (on 2.4 cm cells a fitted table is already about 6% seen through); a candidate seen through no more
-than the fitted shape (give or take a fifth of the limit) is never rejected for it. With ``max_obs_gain``
+than the fitted shape is never rejected for it. With ``max_obs_gain``
 (:func:`scored_among`) a candidate whose energy exceeds the fitted shape's by more than that is rejected too.
 """
 
@@ -145,12 +145,10 @@ def seen_through_limit(stage1: float, max_seen_through: float = 0.05) -> float:
     """The seen-through share above which an object's candidates are rejected, given the share of its fitted
     shape: ``max_seen_through`` plus that share, capped at ``max_seen_through`` (what the fit's resolution
     gives is no evidence against a candidate; more than twice the limit is), and never below the fitted shape's
-    own share plus a fifth of ``max_seen_through`` (a candidate seen through about as much as the shape it
-    completes adds no matter where a camera looked through: a phone capture's table, fitted 12% seen through,
-    its far legs mirrored at 11%; fitted 10.86%, the same mirror at 10.95% had been rejected by the hair between,
-    and the table, whose fitted shape does not stand, fell with everything on it)."""
+    own share (a candidate seen through no more than the shape it completes adds no matter where a camera
+    looked through: a phone capture's table, fitted 12% seen through, its far legs mirrored at 11%)."""
     share = max(stage1, 0.0)
-    return max(max_seen_through + min(share, max_seen_through), share + 0.2 * max_seen_through)
+    return max(max_seen_through + min(share, max_seen_through), share)
 
 
 class Limit(NamedTuple):

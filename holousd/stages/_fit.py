@@ -10,10 +10,8 @@ Pipeline per capture:
    meshed (a closed slab a truncation distance thick, usable as a static collider); the floor height is the
    robust lowest level of the background points. Without metric depth the floor is the lowest point of the
    objects' visual hulls and the background mesh is a floor slab under the observed area.
-3. Extent of each instance: back-projected masked depth (robust percentiles; with metric depth, silhouette
-   points no other frame confirms do not hold a side out: a mask a pixel too wide puts them in the space the
-   object hides), or without depth a visual hull carved from the masks over a scene bound around the cameras.
-   Voxel size from the instance's size
+3. Extent of each instance: back-projected masked depth (robust percentiles), or without depth a visual hull
+   carved from the masks over a scene bound around the cameras. Voxel size from the instance's size
    (``target_resolution`` samples along its largest side), never finer than a fraction of the pixel
    footprint, and coarsened until the grid fits ``max_voxels``.
 4. Initialisation: TSDF fusion of the instance's masked depth over its grid (free space and "behind the room
@@ -71,12 +69,10 @@ from holousd.geometry._grid import (
     carve_hull,
     fuse_tsdf,
     label_consensus,
-    near_label_edge,
-    object_point_mask,
+    object_points,
     observed_fraction,
     sample_grid,
     signed_distance_from_occupancy,
-    unconfirmed_points,
 )
 from holousd.geometry._meshing import face_budget, mesh_from_sdf, meshed_only
 from holousd.geometry._poses import PoseConfig, PoseRefinement, axis_angle, refine_poses, spread_corrections
@@ -499,19 +495,14 @@ class _Instance:
     color: np.ndarray = field(default_factory=lambda: np.full(3, 0.5))
 
 
-def _extents_metric(frames: _Frames, fusion: np.ndarray, ids: list[int], confirm: bool = False) -> dict[int, tuple]:
-    """Per instance (lo [3], hi [3], median depth) of its back-projected masked depth: robust percentiles of the
-    points :func:`object_points` keeps. With ``confirm`` (metric depth from a sensor), a horizontal side resting
-    on silhouette points no other frame confirms moves in to the rest (see :func:`_confirmed_sides`)."""
+def _extents_metric(frames: _Frames, fusion: np.ndarray, ids: list[int]) -> dict[int, tuple]:
     views = frames.views
     clouds: dict[int, list[np.ndarray]] = {k: [] for k in ids}
     depths: dict[int, list[np.ndarray]] = {k: [] for k in ids}
     owners: dict[int, list[np.ndarray]] = {k: [] for k in ids}
-    edges: dict[int, list[np.ndarray]] = {k: [] for k in ids}
     for i in fusion:
         lab = views.labels[i]
         valid = views.depth[i] > 0  # type: ignore[index]
-        edge = near_label_edge(lab, 2 * SILHOUETTE_PX + 1) if confirm else None
         for k in np.unique(lab):
             if k <= 0 or k not in clouds:
                 continue
@@ -523,8 +514,6 @@ def _extents_metric(frames: _Frames, fusion: np.ndarray, ids: list[int], confirm
             clouds[int(k)].append(views.backproject(int(i), sel, stride))
             depths[int(k)].append(views.depth[i][sel][::stride])  # type: ignore[index]
             owners[int(k)].append(np.full(len(clouds[int(k)][-1]), int(i)))
-            if edge is not None:
-                edges[int(k)].append(edge[sel][::stride])
     out = {}
     for k in ids:
         if not clouds[k]:
@@ -533,81 +522,14 @@ def _extents_metric(frames: _Frames, fusion: np.ndarray, ids: list[int], confirm
         # of them set a small object's extent (the phone demo's plate reached 1.7 m across the room, its mug 1.8 m)
         median_depth = float(np.median(np.concatenate(depths[k])))
         footprint = median_depth / float(np.mean(views.intrinsics[:, [0, 1], [0, 1]]))
-        cloud, owner = np.concatenate(clouds[k]), np.concatenate(owners[k])
-        kept = object_point_mask(cloud, owner, max(0.02, 3.0 * footprint), views, k, fusion)
-        cloud, owner = cloud[kept], owner[kept]
+        cloud = object_points(np.concatenate(clouds[k]), np.concatenate(owners[k]), max(0.02, 3.0 * footprint),
+                              views, k, fusion)  # fmt: skip
         lo, hi = np.percentile(cloud, 0.2, axis=0), np.percentile(cloud, 99.8, axis=0)
         # downwards, all but stray points: the lowest 0.2% of a table's points lie 7 cm above the floor (its
         # legs' feet are seen in few frames, 95 of 72k points below 5 cm on hard/stack), and the extent cut them
         lo[2] = np.percentile(cloud[:, 2], 0.02)
-        if confirm:
-            lo, hi = _confirmed_sides(cloud, owner, np.concatenate(edges[k])[kept], views, k, fusion, lo, hi,
-                                      footprint)
         out[k] = (lo, hi, median_depth)
     return out
-
-
-SILHOUETTE_PX = 2
-"""Pixels from an instance mask's boundary that :func:`_extents_metric` counts as its silhouette (a video
-segmenter's masks are a pixel or two off there)."""
-EXTENT_CONFIRM_M = 0.03
-"""How far (metres) the unconfirmed silhouette points must hold a side of an instance's extent out before the side
-moves in to the rest: closer, the TSDF's truncation and the refinement settle it, and exact masks and depth
-(synth's clean captures: under 1.6 cm on every bench and hard scene and the demo) leave the extent as it was.
-At 2 cm, hard/against_wall (phone)'s cabinet, its side seen edge-on beside the wall, lost 2.8 cm of its depth
-(its F1 100 -> 81: its back face then beyond the 5 cm threshold); the defect it is for reaches 7-19 cm."""
-
-
-def _confirmed_sides(cloud: np.ndarray, owner: np.ndarray, edge: np.ndarray, views: Views, k: int,
-                     check: np.ndarray, lo: np.ndarray, hi: np.ndarray, pixel: float,
-                     ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
-    """``lo``, ``hi`` with each horizontal side moved in to the points left when the silhouette points in the
-    cloud's horizontal tails (beyond its 2nd and 98th percentiles) that no other frame confirms
-    (:func:`unconfirmed_points`) are dropped, plus ``pixel`` (a pixel's footprint, metres: the true outline
-    lies within the silhouette pixels dropped), where that moves it in by more than ``EXTENT_CONFIRM_M``.
-
-    The space an object hides from every frame is where the depth of its silhouette pixels lands when the mask
-    is a pixel too wide or the depth coarser than the mask (the phone capture's 8 cm box reached 17 cm back
-    over the book behind it, and the fusion filled everything it hid up to there). A side of the object seen in
-    one frame only is held by the pixels inside its silhouette, which are kept, and so is what continues the
-    surface of the points kept. On bench/fast (phone), the objects' sides reach 156-319 cm in sum outside their
-    true boxes a scene (and 5-29 cm inside); moved in, 112-290 cm (5-40 cm inside); hard/fast (phone): 48-128
-    and 3-17 cm, moved in 43-119 and 3-17 (sides moved by more than 3 cm; at 2 cm: 110-289 and 45-113)."""
-    a, b = np.percentile(cloud[:, :2], 2.0, axis=0), np.percentile(cloud[:, :2], 98.0, axis=0)
-    tail = edge & np.any((cloud[:, :2] < a) | (cloud[:, :2] > b), axis=1)
-    if not tail.any():
-        return lo, hi
-    drop = np.zeros(len(cloud), bool)
-    drop[tail] = unconfirmed_points(cloud[tail], owner[tail], views, k, check)
-    if not drop.any():
-        return lo, hi
-    # what continues the surface of the points kept (within a centimetre or a pixel of their plane) stays: the
-    # back of a cabinet's side, seen edge-on beside the wall it stands against, is a strip of silhouette pixels the
-    # other frames label as the wall (hard/against_wall (phone): 13 cm of the cabinet cut without this, 2.4 with: left)
-    at = np.flatnonzero(drop)
-    drop[at[_on_surface(cloud[~drop], cloud[at], max(0.01, pixel))]] = False
-    rest = cloud[~drop]
-    lo, hi = lo.copy(), hi.copy()
-    lo2, hi2 = np.percentile(rest[:, :2], 0.2, axis=0) - pixel, np.percentile(rest[:, :2], 99.8, axis=0) + pixel
-    lo[:2] = np.where(lo2 - lo[:2] > EXTENT_CONFIRM_M, lo2, lo[:2])
-    hi[:2] = np.where(hi[:2] - hi2 > EXTENT_CONFIRM_M, hi2, hi[:2])
-    return lo, hi
-
-
-def _on_surface(surface: np.ndarray, points: np.ndarray, tol: float, neighbours: int = 12) -> np.ndarray:
-    """[P] which ``points`` lie within ``tol`` of the plane through their ``neighbours`` nearest ``surface`` points
-    (least squares: the plane of a flat neighbourhood; across an edge or a corner it passes between the faces)."""
-    from scipy.spatial import cKDTree
-
-    if len(surface) < neighbours or len(points) == 0:
-        return np.zeros(len(points), bool)
-    _, idx = cKDTree(surface).query(points, k=neighbours)
-    near = surface[idx]  # [P, n, 3]
-    centre = near.mean(axis=1)
-    spread = near - centre[:, None]
-    _, vectors = np.linalg.eigh(np.einsum("pni,pnj->pij", spread, spread))
-    normal = vectors[:, :, 0]  # the direction of least spread
-    return np.abs(np.einsum("pi,pi->p", points - centre, normal)) <= tol
 
 
 def _silhouette_width(views: Views, fusion: np.ndarray, k: int, centre: np.ndarray) -> float:
@@ -1256,7 +1178,7 @@ def fit(scene: SceneGraph, obs: Observations, config: FitConfig | None = None,
         extents, sparse = _extents_estimated(frames, fusion, ids, config, floor)
     elif metric:
         floor, background = _background_metric(frames, fusion, config)
-        extents = _extents_metric(frames, fusion, ids, confirm=True)
+        extents = _extents_metric(frames, fusion, ids)
     else:
         extents = _extents_hull(frames, fusion, ids, config)
     timings["extents"] = time.perf_counter() - t0

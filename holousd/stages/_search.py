@@ -121,8 +121,7 @@ class SearchConfig:
     the stage-1 shape's own share, counted up to this share again (the fitted shape, first among the candidates,
     sets the baseline and is never rejected: at 2.4 cm cells a fitted table's legs and top edges are about a cell
     wider than the truth, and the fitted demo table itself had 6% of its silhouette seen through), and never on
-    less than the stage-1 shape's own share plus a fifth of this (a phone capture's table, fitted 12% seen
-    through; :func:`holousd.priors.seen_through_limit`)."""
+    less than the stage-1 shape's own share (a phone capture's table, fitted 12% seen through)."""
     max_obs_gain: float | None = 0.25
     """E_obs rejects a candidate whose E_obs exceeds the stage-1 shape's by more than this (dimensionless: a
     quarter of its mask IoU, or 1.25 cm more depth residual on its own pixels): a completion must explain what
